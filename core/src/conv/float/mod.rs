@@ -1,0 +1,27 @@
+//! Convolution in f32 arithmetic over f32 or f16 storage.
+
+use super::Conv2d;
+use crate::precision::FloatElement;
+use crate::view::{View, ViewMut};
+use crate::Isa;
+
+pub(crate) mod scalar;
+
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod avx2;
+
+pub(crate) fn forward<S: FloatElement>(
+    isa: Isa,
+    layer: &Conv2d<'_, S>,
+    src: &View<'_, S>,
+    dst: &mut ViewMut<'_, S>,
+    y0: usize,
+    scratch: &mut [f32],
+) {
+    match isa {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the caller checked support.
+        Isa::Avx2 => unsafe { avx2::forward(layer, src, dst, y0, scratch) },
+        _ => scalar::forward(layer, src, dst, y0, scratch),
+    }
+}

@@ -1,0 +1,125 @@
+//! Instruction sets as an explicit, forceable value.
+//!
+//! Every operator takes an [`Isa`]. [`Isa::detect`] picks the best one this CPU
+//! has; tests and benches force each in turn. Detection works without `std`:
+//! on x86_64 it reads CPUID and XCR0 directly (cached in an atomic), and a
+//! build with the features enabled at compile time (`-C target-feature=+avx2,+fma,+f16c`)
+//! needs no run-time check at all. A forced ISA the CPU lacks is an error, never
+//! a silent fallback to scalar.
+
+/// An instruction-set family a kernel can be run with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Isa {
+    /// Portable Rust, always available; the reference path.
+    Scalar,
+    /// x86_64 AVX2 with FMA and F16C (Haswell, Zen and later).
+    Avx2,
+    /// aarch64 Advanced SIMD.
+    Neon,
+}
+
+impl Isa {
+    /// Every ISA this crate knows, in order of preference from worst to best.
+    pub const ALL: [Isa; 3] = [Isa::Scalar, Isa::Avx2, Isa::Neon];
+
+    /// Short lower-case name (`scalar`, `avx2`, `neon`).
+    pub const fn name(self) -> &'static str {
+        match self {
+            Isa::Scalar => "scalar",
+            Isa::Avx2 => "avx2",
+            Isa::Neon => "neon",
+        }
+    }
+
+    /// Parses a name as printed by [`Isa::name`].
+    pub fn from_name(s: &str) -> Option<Isa> {
+        Isa::ALL.into_iter().find(|i| i.name() == s)
+    }
+
+    /// Whether this CPU (and this build) can run the ISA.
+    pub fn is_supported(self) -> bool {
+        match self {
+            Isa::Scalar => true,
+            Isa::Avx2 => avx2_fma_f16c(),
+            Isa::Neon => cfg!(all(target_arch = "aarch64", target_feature = "neon")),
+        }
+    }
+
+    /// The best supported ISA.
+    pub fn detect() -> Isa {
+        if Isa::Avx2.is_supported() {
+            Isa::Avx2
+        } else if Isa::Neon.is_supported() {
+            Isa::Neon
+        } else {
+            Isa::Scalar
+        }
+    }
+
+    /// `Ok` when supported, else [`crate::Error::IsaUnsupported`].
+    pub fn check(self) -> crate::Result<()> {
+        if self.is_supported() {
+            Ok(())
+        } else {
+            Err(crate::Error::IsaUnsupported { isa: self })
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+fn avx2_fma_f16c() -> bool {
+    use core::sync::atomic::{AtomicU8, Ordering};
+    if cfg!(all(target_feature = "avx2", target_feature = "fma", target_feature = "f16c")) {
+        return true;
+    }
+    // 0: not probed yet, 1: absent, 2: present.
+    static STATE: AtomicU8 = AtomicU8::new(0);
+    match STATE.load(Ordering::Relaxed) {
+        1 => false,
+        2 => true,
+        _ => {
+            let present = probe_avx2_fma_f16c();
+            STATE.store(if present { 2 } else { 1 }, Ordering::Relaxed);
+            present
+        }
+    }
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+fn avx2_fma_f16c() -> bool {
+    false
+}
+
+/// CPUID leaf 1: FMA (ECX bit 12), OSXSAVE (27), AVX (28), F16C (29);
+/// leaf 7: AVX2 (EBX bit 5); XCR0 bits 1 and 2: the OS saves XMM and YMM state.
+#[cfg(target_arch = "x86_64")]
+#[allow(unused_unsafe)] // __cpuid is a safe fn on newer toolchains
+fn probe_avx2_fma_f16c() -> bool {
+    use core::arch::x86_64::{__cpuid, __cpuid_count};
+    // SAFETY: CPUID exists on every x86_64 processor.
+    let max_leaf = unsafe { __cpuid(0) }.eax;
+    if max_leaf < 7 {
+        return false;
+    }
+    // SAFETY: as above; leaf 1 is always valid.
+    let l1 = unsafe { __cpuid(1) };
+    let bit = |r: u32, b: u32| r & (1 << b) != 0;
+    if !(bit(l1.ecx, 12) && bit(l1.ecx, 27) && bit(l1.ecx, 28) && bit(l1.ecx, 29)) {
+        return false;
+    }
+    // SAFETY: OSXSAVE is set, so XGETBV is available.
+    let xcr0 = unsafe { xgetbv0() };
+    if xcr0 & 0b110 != 0b110 {
+        return false;
+    }
+    // SAFETY: max_leaf >= 7.
+    let l7 = unsafe { __cpuid_count(7, 0) };
+    bit(l7.ebx, 5)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "xsave")]
+unsafe fn xgetbv0() -> u64 {
+    // SAFETY: the caller checked OSXSAVE.
+    unsafe { core::arch::x86_64::_xgetbv(0) }
+}

@@ -1,0 +1,45 @@
+//! Pool operators for f32 arithmetic over f32 or f16 storage.
+
+use super::Reduce;
+use crate::precision::FloatElement;
+use crate::view::{View, ViewMut};
+use crate::Isa;
+
+pub(crate) mod scalar;
+
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod avx2;
+
+pub(crate) fn reduce<S: FloatElement>(isa: Isa, op: Reduce, src: &View<'_, S>, dst: &mut ViewMut<'_, S>, y0: usize) {
+    match isa {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the caller checked support.
+        Isa::Avx2 => unsafe { avx2::reduce(op, src, dst, y0) },
+        _ => scalar::reduce(op, src, dst, y0, 0),
+    }
+}
+
+pub(crate) fn upsample<S: FloatElement>(isa: Isa, src: &View<'_, S>, dst: &mut ViewMut<'_, S>, y0: usize) {
+    match isa {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the caller checked support.
+        Isa::Avx2 => unsafe { avx2::upsample(src, dst, y0) },
+        _ => scalar::upsample(src, dst, y0, 0),
+    }
+}
+
+pub(crate) fn composite<S: FloatElement>(
+    isa: Isa,
+    fine: &View<'_, S>,
+    coarse: &View<'_, S>,
+    alpha: &View<'_, S>,
+    dst: &mut ViewMut<'_, S>,
+    y0: usize,
+) {
+    match isa {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the caller checked support.
+        Isa::Avx2 => unsafe { avx2::composite(fine, coarse, alpha, dst, y0) },
+        _ => scalar::composite(fine, coarse, alpha, dst, y0, 0),
+    }
+}

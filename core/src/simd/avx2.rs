@@ -1,0 +1,50 @@
+//! AVX2 loads and stores of eight f32 lanes from either float storage.
+//! f16 goes through F16C (`vcvtph2ps` / `vcvtps2ph`, round to nearest even),
+//! which rounds exactly like `half::f16::from_f32`, so scalar and SIMD stores agree bit for bit.
+
+use core::arch::x86_64::*;
+
+use crate::precision::FloatElement;
+
+/// Eight elements from `p` (unaligned) as f32 lanes.
+///
+/// # Safety
+/// `p .. p + 8` must be readable.
+#[inline]
+#[target_feature(enable = "avx2,fma,f16c")]
+pub unsafe fn load8<S: FloatElement>(p: *const S) -> __m256 {
+    if S::IS_F16 {
+        // SAFETY: caller guarantees 8 readable f16 = 16 bytes.
+        unsafe { _mm256_cvtph_ps(_mm_loadu_si128(p as *const __m128i)) }
+    } else {
+        // SAFETY: caller guarantees 8 readable f32.
+        unsafe { _mm256_loadu_ps(p as *const f32) }
+    }
+}
+
+/// Stores eight f32 lanes to `p` (unaligned), rounding to the storage type.
+///
+/// # Safety
+/// `p .. p + 8` must be writable.
+#[inline]
+#[target_feature(enable = "avx2,fma,f16c")]
+pub unsafe fn store8<S: FloatElement>(p: *mut S, v: __m256) {
+    if S::IS_F16 {
+        let h = _mm256_cvtps_ph::<_MM_FROUND_TO_NEAREST_INT>(v);
+        // SAFETY: caller guarantees 16 writable bytes.
+        unsafe { _mm_storeu_si128(p as *mut __m128i, h) }
+    } else {
+        // SAFETY: caller guarantees 8 writable f32.
+        unsafe { _mm256_storeu_ps(p as *mut f32, v) }
+    }
+}
+
+/// Horizontal maximum of eight lanes.
+#[inline]
+#[target_feature(enable = "avx2,fma")]
+pub fn hmax(v: __m256) -> f32 {
+    let m = _mm_max_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps::<1>(v));
+    let m = _mm_max_ps(m, _mm_movehl_ps(m, m));
+    let m = _mm_max_ss(m, _mm_shuffle_ps::<0b01>(m, m));
+    _mm_cvtss_f32(m)
+}

@@ -1,0 +1,4 @@
+//! Load/store helpers shared by the SIMD kernels.
+
+#[cfg(target_arch = "x86_64")]
+pub mod avx2;

@@ -1,0 +1,351 @@
+//! The softmax operators in f32 arithmetic over f32 or f16 storage.
+//!
+//! The control flow (tiling, shifts, prefix/suffix, fallback) is written once
+//! here; the row loops it calls come from an [`Ops`] implementation per
+//! instruction set. The box sums, prefix/suffix sums and ratios are the same
+//! sequence of IEEE operations in every implementation, so the paths differ
+//! only in the `exp` polynomial's FMA rounding.
+
+use super::{clamp_logit, FusedInputs, WindowPath, MAX_CHANNELS, MAX_FUSED, TINY_DENOMINATOR};
+use crate::precision::FloatElement;
+use crate::view::{View, ViewMut};
+use crate::Isa;
+
+pub(crate) mod scalar;
+
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod avx2;
+
+/// Output rows per tile of the box-sum path.
+pub(crate) const TILE_H: usize = 48;
+/// Output columns per tile of the box-sum path.
+pub(crate) const TILE_W: usize = 256;
+
+/// Row loops of the box-sum path.
+pub(crate) trait Ops {
+    /// Maximum of a row of logits, NaN skipped (`-inf` when empty or all NaN).
+    fn row_max<S: FloatElement>(&self, row: &[S]) -> f32;
+    /// `e[i] = exp(clamp(l[i]) - shift)`.
+    fn exp_shifted<S: FloatElement>(&self, l: &[S], shift: f32, e: &mut [f32]);
+    /// `out[i] = e[i] * r[i]`.
+    fn mul<S: FloatElement>(&self, e: &[f32], r: &[S], out: &mut [f32]);
+    /// `out[x] = sum_{t < k} v[x + t]` for `x < out.len()` by power-of-two
+    /// doubling; `lv` holds `3 * v.len()` words.
+    fn box_sum(&self, v: &[f32], k: usize, out: &mut [f32], lv: &mut [f32]);
+    /// `out = a + b`.
+    fn add(&self, a: &[f32], b: &[f32], out: &mut [f32]);
+    /// `a += b`.
+    fn add_assign(&self, a: &mut [f32], b: &[f32]);
+    /// Softmax over `m` fusion logit rows at columns `x0 .. x0 + n` of row `y`:
+    /// `out[i * stride + x] = alpha_i`.
+    fn alphas<S: FloatElement>(
+        &self,
+        f: &View<'_, S>,
+        y: usize,
+        x0: usize,
+        out: &mut [f32],
+        stride: usize,
+    );
+    /// For every x with `den >= TINY`: `acc_c += num_c * (alpha / den)` where
+    /// `den = s[0] (+ p[0])`, `num_c = s[1 + c] (+ p[1 + c])`; row `p` of
+    /// plane `q` starts at `q * plane`. Returns whether any x had `den < TINY`.
+    #[allow(clippy::too_many_arguments)]
+    fn accumulate(
+        &self,
+        s: &[f32],
+        p: Option<&[f32]>,
+        plane: usize,
+        channels: usize,
+        alpha: &[f32],
+        acc: &mut [f32],
+        acc_plane: usize,
+    ) -> bool;
+    /// `out = from_f32(acc * albedo)` (albedo optional).
+    fn finish<S: FloatElement>(&self, acc: &[f32], albedo: Option<&[S]>, out: &mut [S]);
+}
+
+/// Scratch words of the box-sum path.
+pub(crate) fn boxsum_scratch_len(sizes: &[usize], channels: usize, width: usize) -> usize {
+    let rmax = sizes.iter().copied().max().unwrap_or(1) / 2;
+    let tw = width.min(TILE_W);
+    let th = TILE_H;
+    let t = th + 2 * rmax;
+    let l = tw + 2 * rmax;
+    let ch = channels;
+    let m = sizes.len();
+    ch * th * tw + m * th * tw + 2 * (1 + ch) * t * tw + (1 + ch) * l + 3 * l
+}
+
+pub(crate) fn fused<S: FloatElement>(
+    isa: Isa,
+    path: WindowPath,
+    inp: &FusedInputs<'_, S>,
+    dst: &mut ViewMut<'_, S>,
+    y0: usize,
+    scratch: &mut [f32],
+) {
+    match (isa, path) {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the caller checked support.
+        (Isa::Avx2, WindowPath::Direct) => unsafe { avx2::direct(inp, dst, y0) },
+        #[cfg(target_arch = "x86_64")]
+        (Isa::Avx2, WindowPath::BoxSum) => {
+            // SAFETY: the caller checked support.
+            let ops = unsafe { avx2::Avx2Ops::new() };
+            boxsum(&ops, inp, dst, y0, scratch)
+        }
+        (_, WindowPath::Direct) => scalar::direct(inp, dst, y0),
+        (_, WindowPath::BoxSum) => boxsum(&scalar::ScalarOps, inp, dst, y0, scratch),
+    }
+}
+
+pub(crate) fn kernels<S: FloatElement>(
+    isa: Isa,
+    k: usize,
+    logits: &View<'_, S>,
+    dst: &mut ViewMut<'_, S>,
+    y0: usize,
+) {
+    match isa {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the caller checked support.
+        Isa::Avx2 => unsafe { avx2::kernels(k, logits, dst, y0) },
+        _ => scalar::kernels(k, logits, dst, y0),
+    }
+}
+
+pub(crate) fn channel<S: FloatElement>(isa: Isa, src: &View<'_, S>, dst: &mut ViewMut<'_, S>) {
+    match isa {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the caller checked support.
+        Isa::Avx2 => unsafe { avx2::channel(src, dst) },
+        _ => scalar::channel(src, dst),
+    }
+}
+
+/// The direct window sum of size `k` at pixel `(y, x)` with the window's own
+/// max shift: writes `R_c` for `c < channels` into `out`. Rows then columns
+/// ascending, out-of-image taps skipped.
+pub(crate) fn direct_pixel<S: FloatElement>(
+    k: usize,
+    logits: &View<'_, S>,
+    plane: usize,
+    radiance: &View<'_, S>,
+    y: usize,
+    x: usize,
+    out: &mut [f32; MAX_CHANNELS],
+) {
+    let (w, h) = (radiance.width(), radiance.height());
+    let r = k / 2;
+    let ylo = y.saturating_sub(r);
+    let yhi = (y + r + 1).min(h);
+    let xlo = x.saturating_sub(r);
+    let xhi = (x + r + 1).min(w);
+    let mut m = f32::NEG_INFINITY;
+    for yy in ylo..yhi {
+        for &l in &logits.row(plane, yy)[xlo..xhi] {
+            m = m.max(clamp_logit(l.to_f32()));
+        }
+    }
+    let ch = radiance.channels();
+    let mut den = 0.0f32;
+    let mut num = [0.0f32; MAX_CHANNELS];
+    for yy in ylo..yhi {
+        let lrow = logits.row(plane, yy);
+        for xx in xlo..xhi {
+            let e = crate::math::scalar::exp(clamp_logit(lrow[xx].to_f32()) - m);
+            den += e;
+            for (c, n) in num.iter_mut().enumerate().take(ch) {
+                *n += e * radiance.at(c, yy, xx).to_f32();
+            }
+        }
+    }
+    // den >= 1: the maximum's weight is exactly exp(0) = 1.
+    for c in 0..ch {
+        out[c] = num[c] / den;
+    }
+}
+
+/// Fusion weights at one pixel: softmax over the `m` planes of `f`, max-shifted.
+pub(crate) fn alpha_pixel<S: FloatElement>(
+    f: &View<'_, S>,
+    y: usize,
+    x: usize,
+    out: &mut [f32; MAX_FUSED],
+) {
+    let m = f.channels();
+    let mut mx = f32::NEG_INFINITY;
+    for i in 0..m {
+        mx = mx.max(clamp_logit(f.at(i, y, x).to_f32()));
+    }
+    let mut sum = 0.0f32;
+    for (i, o) in out.iter_mut().enumerate().take(m) {
+        *o = crate::math::scalar::exp(clamp_logit(f.at(i, y, x).to_f32()) - mx);
+        sum += *o;
+    }
+    let inv = 1.0 / sum;
+    for o in out.iter_mut().take(m) {
+        *o *= inv;
+    }
+}
+
+/// The box-sum path, tile by tile.
+fn boxsum<S: FloatElement, O: Ops>(
+    o: &O,
+    inp: &FusedInputs<'_, S>,
+    dst: &mut ViewMut<'_, S>,
+    y0: usize,
+    scratch: &mut [f32],
+) {
+    let w = inp.radiance.width();
+    let hd = dst.height();
+    let mut ty = 0;
+    while ty < hd {
+        let th = TILE_H.min(hd - ty);
+        let mut tx = 0;
+        while tx < w {
+            let tw = TILE_W.min(w - tx);
+            tile(o, inp, dst, y0, ty, th, tx, tw, scratch);
+            tx += tw;
+        }
+        ty += th;
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn tile<S: FloatElement, O: Ops>(
+    o: &O,
+    inp: &FusedInputs<'_, S>,
+    dst: &mut ViewMut<'_, S>,
+    y0: usize,
+    ty: usize,
+    th: usize,
+    tx: usize,
+    tw: usize,
+    scratch: &mut [f32],
+) {
+    let rad = &inp.radiance;
+    let imp = &inp.importance;
+    let (w, h, ch) = (rad.width(), rad.height(), rad.channels());
+    let m = inp.sizes.len();
+    let rmax = inp.sizes.iter().copied().max().unwrap_or(1) / 2;
+    let np = 1 + ch; // planes carried: weight sum, then one per channel
+    let tmax = th + 2 * rmax;
+    let lmax = tw + 2 * rmax;
+    let (acc, rest) = scratch.split_at_mut(ch * th * tw);
+    let (alpha, rest) = rest.split_at_mut(m * th * tw);
+    let (a_buf, rest) = rest.split_at_mut(np * tmax * tw);
+    let (p_buf, rest) = rest.split_at_mut(np * tmax * tw);
+    let (erow, rest) = rest.split_at_mut(np * lmax);
+    let lv = &mut rest[..3 * lmax];
+    acc.fill(0.0);
+    let ytop = y0 + ty; // image row of the tile's first output row
+    match &inp.fusion {
+        Some(f) => {
+            for t in 0..th {
+                o.alphas(f, ytop + t, tx, &mut alpha[t * tw..], th * tw);
+            }
+        }
+        None => alpha[..th * tw].fill(1.0),
+    }
+    for (i, &k) in inp.sizes.iter().enumerate() {
+        let r = k / 2;
+        let tt = th + 2 * r; // rows carried for this size
+        let l = tw + 2 * r; // columns carried for this size
+        let ybase = ytop as isize - r as isize;
+        let xbase = tx as isize - r as isize;
+        let u0 = (-xbase).max(0) as usize;
+        let u1 = ((w as isize - xbase).min(l as isize)) as usize;
+        let xs = (xbase + u0 as isize) as usize; // image column of erow[u0]
+        let xe = xs + (u1 - u0);
+
+        // The tile's shift: the largest (clamped) logit anywhere it reads.
+        let mut shift = f32::NEG_INFINITY;
+        for t in 0..tt {
+            let yy = ybase + t as isize;
+            if yy >= 0 && (yy as usize) < h {
+                shift = shift.max(o.row_max(&imp.row(i, yy as usize)[xs..xe]));
+            }
+        }
+        let shift = clamp_logit(shift);
+
+        let row_at = |q: usize, t: usize| (q * tt + t) * tw;
+        for t in 0..tt {
+            let yy = ybase + t as isize;
+            if yy < 0 || yy as usize >= h {
+                for q in 0..np {
+                    a_buf[row_at(q, t)..row_at(q, t) + tw].fill(0.0);
+                }
+            } else {
+                let yy = yy as usize;
+                let (e, er) = erow[..np * l].split_at_mut(l);
+                e[..u0].fill(0.0);
+                e[u1..].fill(0.0);
+                o.exp_shifted(&imp.row(i, yy)[xs..xe], shift, &mut e[u0..u1]);
+                for c in 0..ch {
+                    let out = &mut er[c * l..(c + 1) * l];
+                    out[..u0].fill(0.0);
+                    out[u1..].fill(0.0);
+                    o.mul(&e[u0..u1], &rad.row(c, yy)[xs..xe], &mut out[u0..u1]);
+                }
+                for q in 0..np {
+                    let v = &erow[q * l..(q + 1) * l];
+                    o.box_sum(v, k, &mut a_buf[row_at(q, t)..row_at(q, t) + tw], lv);
+                }
+            }
+            // Prefix within blocks of k rows (blocks start at t = 0).
+            for q in 0..np {
+                let at = row_at(q, t);
+                if t % k == 0 {
+                    p_buf[at..at + tw].copy_from_slice(&a_buf[at..at + tw]);
+                } else {
+                    let (prev, cur) = p_buf.split_at_mut(at);
+                    o.add(&a_buf[at..at + tw], &prev[at - tw..], &mut cur[..tw]);
+                }
+            }
+        }
+        // Suffix within blocks, in place, walking up; emit windows as they complete.
+        for t in (0..tt).rev() {
+            let block_last = t % k == k - 1 || t == tt - 1;
+            if !block_last {
+                for q in 0..np {
+                    let at = row_at(q, t);
+                    let (cur, next) = a_buf.split_at_mut(at + tw);
+                    o.add_assign(&mut cur[at..], &next[..tw]);
+                }
+            }
+            if t < th {
+                // Window rows t ..= t + k - 1: one whole block, or a suffix plus a prefix.
+                let second = (t % k != 0).then_some(t + k - 1);
+                let s_rows = &a_buf[row_at(0, t)..];
+                let p_rows = second.map(|t2| &p_buf[row_at(0, t2)..]);
+                let arow = &alpha[(i * th + t) * tw..(i * th + t + 1) * tw];
+                let acc_row = &mut acc[t * tw..];
+                let any_tiny = o.accumulate(s_rows, p_rows, tt * tw, ch, arow, acc_row, th * tw);
+                if any_tiny {
+                    for x in 0..tw {
+                        let mut den = a_buf[row_at(0, t) + x];
+                        if let Some(t2) = second {
+                            den += p_buf[row_at(0, t2) + x];
+                        }
+                        if den >= TINY_DENOMINATOR {
+                            continue;
+                        }
+                        let mut rr = [0.0f32; MAX_CHANNELS];
+                        direct_pixel(k, imp, i, rad, ytop + t, tx + x, &mut rr);
+                        for c in 0..ch {
+                            acc[(c * th + t) * tw + x] += rr[c] * arow[x];
+                        }
+                    }
+                }
+            }
+        }
+    }
+    for t in 0..th {
+        for c in 0..ch {
+            let a = &acc[(c * th + t) * tw..(c * th + t + 1) * tw];
+            let alb = inp.albedo.as_ref().map(|v| &v.row(c, ytop + t)[tx..tx + tw]);
+            o.finish(a, alb, &mut dst.row_mut(c, ty + t)[tx..tx + tw]);
+        }
+    }
+}

@@ -1,0 +1,272 @@
+//! Portable row loops and per-pixel paths of the softmax operators.
+
+use super::{alpha_pixel, direct_pixel, Ops};
+use crate::math::scalar::exp;
+use crate::precision::FloatElement;
+use crate::softmax::{clamp_logit, FusedInputs, MAX_CHANNELS, MAX_FUSED, TINY_DENOMINATOR};
+use crate::view::{View, ViewMut};
+
+/// The scalar [`Ops`].
+pub(crate) struct ScalarOps;
+
+/// Power-of-two doubling box sum shared by the scalar path (and, for the
+/// combining order, mirrored exactly by the SIMD path).
+pub(crate) fn box_sum_scalar(v: &[f32], k: usize, out: &mut [f32], lv: &mut [f32]) {
+    let n = out.len();
+    if k == 1 {
+        out.copy_from_slice(&v[..n]);
+        return;
+    }
+    let len = v.len();
+    let (s2, rest) = lv.split_at_mut(len);
+    let (s4, s8) = rest.split_at_mut(len);
+    for x in 0..len - 1 {
+        s2[x] = v[x] + v[x + 1];
+    }
+    if k >= 4 {
+        for x in 0..len - 3 {
+            s4[x] = s2[x] + s2[x + 2];
+        }
+    }
+    if k >= 8 {
+        for x in 0..len - 7 {
+            s8[x] = s4[x] + s4[x + 4];
+        }
+    }
+    // Pieces from the largest power of two down; the first initialises.
+    let mut off = 0;
+    let mut first = true;
+    for (bit, level) in [(8usize, &*s8), (4, &*s4), (2, &*s2), (1, v)] {
+        if k & bit == 0 {
+            continue;
+        }
+        if first {
+            out.copy_from_slice(&level[off..off + n]);
+            first = false;
+        } else {
+            for (o, &a) in out.iter_mut().zip(&level[off..off + n]) {
+                *o += a;
+            }
+        }
+        off += bit;
+    }
+}
+
+impl Ops for ScalarOps {
+    fn row_max<S: FloatElement>(&self, row: &[S]) -> f32 {
+        row.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v.to_f32()))
+    }
+
+    fn exp_shifted<S: FloatElement>(&self, l: &[S], shift: f32, e: &mut [f32]) {
+        for (o, &v) in e.iter_mut().zip(l) {
+            *o = exp(clamp_logit(v.to_f32()) - shift);
+        }
+    }
+
+    fn mul<S: FloatElement>(&self, e: &[f32], r: &[S], out: &mut [f32]) {
+        for ((o, &a), &b) in out.iter_mut().zip(e).zip(r) {
+            *o = a * b.to_f32();
+        }
+    }
+
+    fn box_sum(&self, v: &[f32], k: usize, out: &mut [f32], lv: &mut [f32]) {
+        box_sum_scalar(v, k, out, lv)
+    }
+
+    fn add(&self, a: &[f32], b: &[f32], out: &mut [f32]) {
+        for ((o, &x), &y) in out.iter_mut().zip(a).zip(b) {
+            *o = x + y;
+        }
+    }
+
+    fn add_assign(&self, a: &mut [f32], b: &[f32]) {
+        for (x, &y) in a.iter_mut().zip(b) {
+            *x += y;
+        }
+    }
+
+    fn alphas<S: FloatElement>(
+        &self,
+        f: &View<'_, S>,
+        y: usize,
+        x0: usize,
+        out: &mut [f32],
+        stride: usize,
+    ) {
+        let m = f.channels();
+        let n = out.len().min(stride);
+        let mut a = [0.0f32; MAX_FUSED];
+        for x in 0..n.min(f.width() - x0) {
+            alpha_pixel(f, y, x0 + x, &mut a);
+            for i in 0..m {
+                out[i * stride + x] = a[i];
+            }
+        }
+    }
+
+    fn accumulate(
+        &self,
+        s: &[f32],
+        p: Option<&[f32]>,
+        plane: usize,
+        channels: usize,
+        alpha: &[f32],
+        acc: &mut [f32],
+        acc_plane: usize,
+    ) -> bool {
+        let n = alpha.len();
+        let mut any_tiny = false;
+        for x in 0..n {
+            let den = match p {
+                Some(p) => s[x] + p[x],
+                None => s[x],
+            };
+            if den >= TINY_DENOMINATOR {
+                let inv = alpha[x] / den;
+                for c in 0..channels {
+                    let at = (1 + c) * plane + x;
+                    let num = match p {
+                        Some(p) => s[at] + p[at],
+                        None => s[at],
+                    };
+                    acc[c * acc_plane + x] += num * inv;
+                }
+            } else {
+                any_tiny = true;
+            }
+        }
+        any_tiny
+    }
+
+    fn finish<S: FloatElement>(&self, acc: &[f32], albedo: Option<&[S]>, out: &mut [S]) {
+        match albedo {
+            Some(al) => {
+                for ((o, &a), &b) in out.iter_mut().zip(acc).zip(al) {
+                    *o = S::from_f32(a * b.to_f32());
+                }
+            }
+            None => {
+                for (o, &a) in out.iter_mut().zip(acc) {
+                    *o = S::from_f32(a);
+                }
+            }
+        }
+    }
+}
+
+/// The fused filter at one pixel with window-local shifts.
+pub(crate) fn fused_pixel<S: FloatElement>(inp: &FusedInputs<'_, S>, y: usize, x: usize) -> [f32; MAX_CHANNELS] {
+    let ch = inp.radiance.channels();
+    let mut alpha = [1.0f32; MAX_FUSED];
+    if let Some(f) = &inp.fusion {
+        alpha_pixel(f, y, x, &mut alpha);
+    }
+    let mut acc = [0.0f32; MAX_CHANNELS];
+    for (i, &k) in inp.sizes.iter().enumerate() {
+        let mut rr = [0.0f32; MAX_CHANNELS];
+        direct_pixel(k, &inp.importance, i, &inp.radiance, y, x, &mut rr);
+        for c in 0..ch {
+            acc[c] += rr[c] * alpha[i];
+        }
+    }
+    if let Some(al) = &inp.albedo {
+        for (c, a) in acc.iter_mut().enumerate().take(ch) {
+            *a *= al.at(c, y, x).to_f32();
+        }
+    }
+    acc
+}
+
+/// The direct path over a band of output rows.
+pub(crate) fn direct<S: FloatElement>(inp: &FusedInputs<'_, S>, dst: &mut ViewMut<'_, S>, y0: usize) {
+    let ch = inp.radiance.channels();
+    for yo in 0..dst.height() {
+        for x in 0..dst.width() {
+            let v = fused_pixel(inp, y0 + yo, x);
+            for (c, &vc) in v.iter().enumerate().take(ch) {
+                dst.row_mut(c, yo)[x] = S::from_f32(vc);
+            }
+        }
+    }
+}
+
+/// The weights of the window of size `k` around `(y, x)`, tap `j` into `w[j]`
+/// (0 for out-of-image taps).
+pub(crate) fn kernel_pixel<S: FloatElement>(
+    k: usize,
+    logits: &View<'_, S>,
+    y: usize,
+    x: usize,
+    w: &mut [f32],
+) {
+    let (wd, h) = (logits.width(), logits.height());
+    let r = k / 2;
+    let inside = |yy: usize, xx: usize| {
+        let sy = (y + yy).checked_sub(r).filter(|&v| v < h);
+        let sx = (x + xx).checked_sub(r).filter(|&v| v < wd);
+        sy.zip(sx)
+    };
+    let mut m = f32::NEG_INFINITY;
+    for ky in 0..k {
+        for kx in 0..k {
+            if let Some((sy, sx)) = inside(ky, kx) {
+                m = m.max(clamp_logit(logits.at(0, sy, sx).to_f32()));
+            }
+        }
+    }
+    let mut den = 0.0f32;
+    for ky in 0..k {
+        for kx in 0..k {
+            let e = match inside(ky, kx) {
+                Some((sy, sx)) => exp(clamp_logit(logits.at(0, sy, sx).to_f32()) - m),
+                None => 0.0,
+            };
+            w[ky * k + kx] = e;
+            den += e;
+        }
+    }
+    let inv = 1.0 / den;
+    for v in w[..k * k].iter_mut() {
+        *v *= inv;
+    }
+}
+
+/// Materialised kernels, pixel by pixel.
+pub(crate) fn kernels<S: FloatElement>(k: usize, logits: &View<'_, S>, dst: &mut ViewMut<'_, S>, y0: usize) {
+    let mut w = [0.0f32; 15 * 15];
+    for yo in 0..dst.height() {
+        for x in 0..dst.width() {
+            kernel_pixel(k, logits, y0 + yo, x, &mut w);
+            for (j, &v) in w[..k * k].iter().enumerate() {
+                dst.row_mut(j, yo)[x] = S::from_f32(v);
+            }
+        }
+    }
+}
+
+/// Channel softmax at pixel `(y, x)`: max pass, exp-and-sum pass, scale pass.
+pub(crate) fn channel_at<S: FloatElement>(src: &View<'_, S>, dst: &mut ViewMut<'_, S>, y: usize, x: usize) {
+    let n = src.channels();
+    let mut m = f32::NEG_INFINITY;
+    for c in 0..n {
+        m = m.max(clamp_logit(src.at(c, y, x).to_f32()));
+    }
+    let mut sum = 0.0f32;
+    for c in 0..n {
+        sum += exp(clamp_logit(src.at(c, y, x).to_f32()) - m);
+    }
+    let inv = 1.0 / sum;
+    for c in 0..n {
+        let e = exp(clamp_logit(src.at(c, y, x).to_f32()) - m);
+        dst.row_mut(c, y)[x] = S::from_f32(e * inv);
+    }
+}
+
+/// Channel softmax, pixel by pixel (any channel count).
+pub(crate) fn channel<S: FloatElement>(src: &View<'_, S>, dst: &mut ViewMut<'_, S>) {
+    for y in 0..src.height() {
+        for x in 0..src.width() {
+            channel_at(src, dst, y, x);
+        }
+    }
+}

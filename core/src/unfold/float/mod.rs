@@ -1,0 +1,27 @@
+//! Unfold for f32 arithmetic over f32 or f16 storage.
+
+use crate::precision::FloatElement;
+use crate::view::{View, ViewMut};
+use crate::Isa;
+
+pub(crate) mod scalar;
+
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod avx2;
+
+pub(crate) fn run<S: FloatElement>(
+    isa: Isa,
+    k: usize,
+    kernel: &View<'_, S>,
+    src: &View<'_, S>,
+    dst: &mut ViewMut<'_, S>,
+    y0: usize,
+    scratch: &mut [f32],
+) {
+    match isa {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the caller checked `isa.is_supported()`.
+        Isa::Avx2 => unsafe { avx2::run(k, kernel, src, dst, y0, scratch) },
+        _ => scalar::run(k, kernel, src, dst, y0, scratch),
+    }
+}
