@@ -223,7 +223,15 @@ def keyframes_at(keys, t):
 
 
 def derive_seed(base, frame, stream, index=0):
-    """32-bit Mitsuba seed for one render call (stable across platforms)."""
+    """32-bit Mitsuba seed for one render call (stable across platforms).
+
+    Streams used by main(): 'A@<spp>' and 'B@<spp>' (the two noisy estimates),
+    'ref' (reference), 'aov' (Mitsuba AOVs), 'albedo' (directional albedo);
+    `index` counts the passes of one render. The first four bytes of
+    sha256("base/frame/stream/index"), little endian. Mitsuba's independent
+    sampler hashes (seed, sample index) with TEA, so distinct seeds give
+    statistically independent sample streams.
+    """
     text = '%d/%d/%s/%d' % (base, frame, stream, index)
     return int.from_bytes(hashlib.sha256(text.encode()).digest()[:4], 'little')
 
@@ -770,12 +778,17 @@ def main(argv=None):
         scene_dict, cam, mats = desc.build(t)
         scene = mi.load_dict(scene_dict)
         stats = {}
-        seed_a = derive_seed(desc.seed, f, 'A')
-        seed_b = derive_seed(desc.seed, f, 'B')
+        # the noisy streams depend on the spp, so e.g. the 1-spp and the 16-spp
+        # renders of one scene share no random numbers; the reference does not
+        stream_a, stream_b = 'A@%d' % desc.spp, 'B@%d' % desc.spp
+        seed_a = derive_seed(desc.seed, f, stream_a)
+        seed_b = derive_seed(desc.seed, f, stream_b)
         seed_aov = derive_seed(desc.seed, f, 'aov')
-        noisy_a, _ = render_radiance(scene, desc.spp, lambda i: derive_seed(desc.seed, f, 'A', i),
+        noisy_a, _ = render_radiance(scene, desc.spp,
+                                     lambda i: derive_seed(desc.seed, f, stream_a, i),
                                      args.max_lanes)
-        noisy_b, _ = render_radiance(scene, desc.spp, lambda i: derive_seed(desc.seed, f, 'B', i),
+        noisy_b, _ = render_radiance(scene, desc.spp,
+                                     lambda i: derive_seed(desc.seed, f, stream_b, i),
                                      args.max_lanes)
         noisy_a = sanitize(noisy_a, stats, 'A')
         noisy_b = sanitize(noisy_b, stats, 'B')

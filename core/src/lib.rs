@@ -20,7 +20,13 @@
 //!   does not depend on how the rows are split.
 #![no_std]
 #![deny(unsafe_op_in_unsafe_fn)]
+// NaN handling is deliberate throughout: `!(x >= lo)` and `x.max(lo).min(hi)`
+// send NaN to a chosen value where `f32::clamp` would propagate it.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::manual_clamp)]
+// SIMD loops index several parallel arrays by lane or channel.
+#![allow(clippy::needless_range_loop)]
 
+pub mod conv;
 pub mod error;
 pub mod isa;
 pub mod math;
@@ -31,11 +37,10 @@ pub mod softmax;
 pub mod tonemap;
 pub mod unfold;
 pub mod view;
-pub mod conv;
 
 pub use error::{Error, Result, Shape};
 pub use isa::Isa;
-pub use precision::{Element, FloatElement, FloatPrecision, Fixed, Precision, F16, F16Arith, F32};
+pub use precision::{Element, F16Arith, Fixed, FloatElement, FloatPrecision, Precision, F16, F32};
 pub use view::{View, ViewMut};
 
 /// Checks that `k` is an odd kernel size in `1..=max`.

@@ -17,9 +17,7 @@
 use core::fmt::Debug;
 
 /// A buffer element: plain old data that can be moved between threads.
-pub trait Element:
-    Copy + Default + PartialEq + Debug + Send + Sync + bytemuck::Pod + 'static
-{
+pub trait Element: Copy + Default + PartialEq + Debug + Send + Sync + bytemuck::Pod + 'static {
     /// Name of the element type.
     const NAME: &'static str;
 }

@@ -25,17 +25,12 @@ fn required_len(
     if row_stride < width {
         return Err(Error::BadStrides { what });
     }
-    let plane_span = (height - 1)
-        .checked_mul(row_stride)
-        .and_then(|v| v.checked_add(width))
-        .ok_or(Error::SizeOverflow { what })?;
+    let plane_span =
+        (height - 1).checked_mul(row_stride).and_then(|v| v.checked_add(width)).ok_or(Error::SizeOverflow { what })?;
     if channels > 1 && plane_stride < plane_span {
         return Err(Error::BadStrides { what });
     }
-    (channels - 1)
-        .checked_mul(plane_stride)
-        .and_then(|v| v.checked_add(plane_span))
-        .ok_or(Error::SizeOverflow { what })
+    (channels - 1).checked_mul(plane_stride).and_then(|v| v.checked_add(plane_span)).ok_or(Error::SizeOverflow { what })
 }
 
 /// Packed length of a shape: `channels * width * height`, or an error on overflow.
@@ -140,10 +135,7 @@ impl<'a, T> View<'a, T> {
         assert!(c < self.shape.channels && y < self.shape.height);
         // SAFETY: in range, and the constructor checked the slice covers every row.
         unsafe {
-            core::slice::from_raw_parts(
-                self.ptr.add(c * self.plane_stride + y * self.row_stride),
-                self.shape.width,
-            )
+            core::slice::from_raw_parts(self.ptr.add(c * self.plane_stride + y * self.row_stride), self.shape.width)
         }
     }
 
@@ -302,10 +294,7 @@ impl<'a, T> ViewMut<'a, T> {
         assert!(c < self.shape.channels && y < self.shape.height);
         // SAFETY: in range; checked by the constructor.
         unsafe {
-            core::slice::from_raw_parts(
-                self.ptr.add(c * self.plane_stride + y * self.row_stride),
-                self.shape.width,
-            )
+            core::slice::from_raw_parts(self.ptr.add(c * self.plane_stride + y * self.row_stride), self.shape.width)
         }
     }
 
@@ -323,10 +312,7 @@ impl<'a, T> ViewMut<'a, T> {
         assert!(c < self.shape.channels && y < self.shape.height);
         // SAFETY: in range; rows never overlap (checked), and `&mut self` is exclusive.
         unsafe {
-            core::slice::from_raw_parts_mut(
-                self.ptr.add(c * self.plane_stride + y * self.row_stride),
-                self.shape.width,
-            )
+            core::slice::from_raw_parts_mut(self.ptr.add(c * self.plane_stride + y * self.row_stride), self.shape.width)
         }
     }
 

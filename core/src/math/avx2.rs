@@ -7,6 +7,9 @@ use core::arch::x86_64::*;
 use super::*;
 
 /// `e^x` per lane; 0 where `x < EXP_LO` or NaN.
+///
+/// # Safety
+/// Only callable (`unsafe`) where AVX2 and FMA are available.
 #[inline]
 #[target_feature(enable = "avx2,fma")]
 pub fn exp(x: __m256) -> __m256 {
@@ -24,14 +27,14 @@ pub fn exp(x: __m256) -> __m256 {
     p = _mm256_fmadd_ps(p, r, _mm256_set1_ps(EXP_C[1]));
     p = _mm256_fmadd_ps(p, r, _mm256_set1_ps(EXP_C[0]));
     let ni = _mm256_cvtps_epi32(n);
-    let scale = _mm256_castsi256_ps(_mm256_slli_epi32::<23>(_mm256_add_epi32(
-        ni,
-        _mm256_set1_epi32(127),
-    )));
+    let scale = _mm256_castsi256_ps(_mm256_slli_epi32::<23>(_mm256_add_epi32(ni, _mm256_set1_epi32(127))));
     _mm256_and_ps(_mm256_mul_ps(p, scale), valid)
 }
 
 /// Natural log per lane for `x > 0`; `f32::MIN` where `x <= 0` or NaN.
+///
+/// # Safety
+/// Only callable (`unsafe`) where AVX2 and FMA are available.
 #[inline]
 #[target_feature(enable = "avx2,fma")]
 pub fn log(x: __m256) -> __m256 {
@@ -67,6 +70,9 @@ pub fn log(x: __m256) -> __m256 {
 }
 
 /// `x^p` per lane for `x > 0`; 0 where `x <= 0` or NaN.
+///
+/// # Safety
+/// Only callable (`unsafe`) where AVX2 and FMA are available.
 #[inline]
 #[target_feature(enable = "avx2,fma")]
 pub fn pow(x: __m256, p: __m256) -> __m256 {
@@ -75,6 +81,9 @@ pub fn pow(x: __m256, p: __m256) -> __m256 {
 }
 
 /// `ln(1 + x)` per lane, accurate near 0, for `x > -1`.
+///
+/// # Safety
+/// Only callable (`unsafe`) where AVX2 and FMA are available.
 #[inline]
 #[target_feature(enable = "avx2,fma")]
 pub fn log1p(x: __m256) -> __m256 {
@@ -87,6 +96,9 @@ pub fn log1p(x: __m256) -> __m256 {
 }
 
 /// `e^x - 1` per lane, accurate near 0.
+///
+/// # Safety
+/// Only callable (`unsafe`) where AVX2 and FMA are available.
 #[inline]
 #[target_feature(enable = "avx2,fma")]
 pub fn expm1(x: __m256) -> __m256 {

@@ -28,14 +28,6 @@ pub(crate) const LN2_LO: f32 = -2.121_944_4e-4;
 /// Adding then subtracting 1.5 * 2^23 rounds an f32 in (-2^22, 2^22) to the
 /// nearest integer (ties to even) without a conversion instruction.
 pub(crate) const ROUND_MAGIC: f32 = 12_582_912.0;
-pub(crate) const EXP_C: [f32; 7] = [
-    1.0,
-    1.0,
-    0.5,
-    1.0 / 6.0,
-    1.0 / 24.0,
-    1.0 / 120.0,
-    1.0 / 720.0,
-];
+pub(crate) const EXP_C: [f32; 7] = [1.0, 1.0, 0.5, 1.0 / 6.0, 1.0 / 24.0, 1.0 / 120.0, 1.0 / 720.0];
 pub(crate) const LN2: f32 = core::f32::consts::LN_2;
 pub(crate) const SQRT_HALF: f32 = core::f32::consts::FRAC_1_SQRT_2;

@@ -104,13 +104,27 @@ pub fn reduce2x2<P: PoolPrecision>(
 }
 
 /// 2x2 average pool, whole image.
-pub fn avg_pool2x2<P: PoolPrecision>(isa: Isa, src: &View<'_, P::Store>, dst: &mut ViewMut<'_, P::Store>) -> Result<()> {
+pub fn avg_pool2x2<P: PoolPrecision>(
+    isa: Isa,
+    src: &View<'_, P::Store>,
+    dst: &mut ViewMut<'_, P::Store>,
+) -> Result<()> {
+    check_whole(src.shape(), dst.shape())?;
     reduce2x2::<P>(isa, Reduce::Mean, src, dst, 0)
 }
 
 /// 2x2 max pool, whole image.
-pub fn max_pool2x2<P: PoolPrecision>(isa: Isa, src: &View<'_, P::Store>, dst: &mut ViewMut<'_, P::Store>) -> Result<()> {
+pub fn max_pool2x2<P: PoolPrecision>(
+    isa: Isa,
+    src: &View<'_, P::Store>,
+    dst: &mut ViewMut<'_, P::Store>,
+) -> Result<()> {
+    check_whole(src.shape(), dst.shape())?;
     reduce2x2::<P>(isa, Reduce::Max, src, dst, 0)
+}
+
+fn check_whole(s: Shape, d: Shape) -> Result<()> {
+    check_shape("pooled output", Shape::new(s.channels, coarse(s.width), coarse(s.height)), d)
 }
 
 /// Nearest-neighbour 2x upsample of the coarse `src` into fine rows

@@ -40,6 +40,9 @@ pub unsafe fn store8<S: FloatElement>(p: *mut S, v: __m256) {
 }
 
 /// Horizontal maximum of eight lanes.
+///
+/// # Safety
+/// Only callable (`unsafe`) where AVX2 and FMA are available.
 #[inline]
 #[target_feature(enable = "avx2,fma")]
 pub fn hmax(v: __m256) -> f32 {

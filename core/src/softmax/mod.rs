@@ -88,13 +88,7 @@ pub trait SoftmaxPrecision: Precision + Sealed {
         scratch: &mut [f32],
     );
     #[doc(hidden)]
-    fn kernels_impl(
-        isa: Isa,
-        k: usize,
-        logits: &View<'_, Self::Store>,
-        dst: &mut ViewMut<'_, Self::Store>,
-        y0: usize,
-    );
+    fn kernels_impl(isa: Isa, k: usize, logits: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>, y0: usize);
     #[doc(hidden)]
     fn channel_impl(isa: Isa, src: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>);
 }
@@ -121,11 +115,7 @@ macro_rules! float_softmax {
             ) {
                 float::kernels(isa, k, logits, dst, y0)
             }
-            fn channel_impl(
-                isa: Isa,
-                src: &View<'_, Self::Store>,
-                dst: &mut ViewMut<'_, Self::Store>,
-            ) {
+            fn channel_impl(isa: Isa, src: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>) {
                 float::channel(isa, src, dst)
             }
         }
@@ -149,12 +139,7 @@ pub fn fused_scratch_len<P: SoftmaxPrecision>(
 }
 
 /// Scratch words [`window_filter`] needs.
-pub fn window_scratch_len<P: SoftmaxPrecision>(
-    path: WindowPath,
-    k: usize,
-    channels: usize,
-    width: usize,
-) -> usize {
+pub fn window_scratch_len<P: SoftmaxPrecision>(path: WindowPath, k: usize, channels: usize, width: usize) -> usize {
     fused_scratch_len::<P>(path, &[k], channels, width)
 }
 
@@ -172,13 +157,7 @@ pub fn window_filter<P: SoftmaxPrecision>(
     scratch: &mut [f32],
 ) -> Result<()> {
     let sizes = [k];
-    let inp = FusedInputs {
-        sizes: &sizes,
-        importance: *logits,
-        fusion: None,
-        albedo: None,
-        radiance: *radiance,
-    };
+    let inp = FusedInputs { sizes: &sizes, importance: *logits, fusion: None, albedo: None, radiance: *radiance };
     fused_filter::<P>(isa, path, &inp, dst, y0, scratch)
 }
 

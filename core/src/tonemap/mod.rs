@@ -117,7 +117,12 @@ float_tonemap!(F16);
 
 /// Applies `op` to every element of `src` into `dst` (same shape; they may
 /// not alias — run it in place through a copy).
-pub fn map<P: TonemapPrecision>(isa: Isa, op: Map, src: &View<'_, P::Store>, dst: &mut ViewMut<'_, P::Store>) -> Result<()> {
+pub fn map<P: TonemapPrecision>(
+    isa: Isa,
+    op: Map,
+    src: &View<'_, P::Store>,
+    dst: &mut ViewMut<'_, P::Store>,
+) -> Result<()> {
     isa.check()?;
     op.check()?;
     check_shape("mapped output", src.shape(), dst.shape())?;

@@ -77,6 +77,7 @@ pub fn apply<P: UnfoldPrecision>(
     dst: &mut ViewMut<'_, P::Store>,
     scratch: &mut [f32],
 ) -> Result<()> {
+    check_shape("unfold output", src.shape(), dst.shape())?;
     apply_rows::<P>(isa, k, kernel, src, dst, 0, scratch)
 }
 

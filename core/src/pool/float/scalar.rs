@@ -46,7 +46,13 @@ pub(crate) fn cell<S: FloatElement>(op: Reduce, r0: &[S], r1: Option<&[S]>, xc: 
     }
 }
 
-pub(crate) fn reduce<S: FloatElement>(op: Reduce, src: &View<'_, S>, dst: &mut ViewMut<'_, S>, y0: usize, x_from: usize) {
+pub(crate) fn reduce<S: FloatElement>(
+    op: Reduce,
+    src: &View<'_, S>,
+    dst: &mut ViewMut<'_, S>,
+    y0: usize,
+    x_from: usize,
+) {
     let (w, h) = (src.width(), src.height());
     for yo in 0..dst.height() {
         let yc = y0 + yo;

@@ -89,10 +89,7 @@ fn add_off(a: &[f32], oa: usize, b: &[f32], ob: usize, out: &mut [f32], n: usize
     while x + 8 <= n {
         // SAFETY: bounds asserted above.
         unsafe {
-            let v = _mm256_add_ps(
-                _mm256_loadu_ps(a.as_ptr().add(oa + x)),
-                _mm256_loadu_ps(b.as_ptr().add(ob + x)),
-            );
+            let v = _mm256_add_ps(_mm256_loadu_ps(a.as_ptr().add(oa + x)), _mm256_loadu_ps(b.as_ptr().add(ob + x)));
             _mm256_storeu_ps(out.as_mut_ptr().add(x), v);
         }
         x += 8;
@@ -313,14 +310,7 @@ impl Ops for Avx2Ops {
         // SAFETY: as above.
         unsafe { acc_off(a, b, 0, n) }
     }
-    fn alphas<S: FloatElement>(
-        &self,
-        f: &View<'_, S>,
-        y: usize,
-        x0: usize,
-        out: &mut [f32],
-        stride: usize,
-    ) {
+    fn alphas<S: FloatElement>(&self, f: &View<'_, S>, y: usize, x0: usize, out: &mut [f32], stride: usize) {
         // SAFETY: as above.
         unsafe { alphas(f, y, x0, out, stride) }
     }

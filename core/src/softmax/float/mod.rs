@@ -38,14 +38,7 @@ pub(crate) trait Ops {
     fn add_assign(&self, a: &mut [f32], b: &[f32]);
     /// Softmax over `m` fusion logit rows at columns `x0 .. x0 + n` of row `y`:
     /// `out[i * stride + x] = alpha_i`.
-    fn alphas<S: FloatElement>(
-        &self,
-        f: &View<'_, S>,
-        y: usize,
-        x0: usize,
-        out: &mut [f32],
-        stride: usize,
-    );
+    fn alphas<S: FloatElement>(&self, f: &View<'_, S>, y: usize, x0: usize, out: &mut [f32], stride: usize);
     /// For every x with `den >= TINY`: `acc_c += num_c * (alpha / den)` where
     /// `den = s[0] (+ p[0])`, `num_c = s[1 + c] (+ p[1 + c])`; row `p` of
     /// plane `q` starts at `q * plane`. Returns whether any x had `den < TINY`.
@@ -69,7 +62,9 @@ pub(crate) fn boxsum_scratch_len(sizes: &[usize], channels: usize, width: usize)
     let rmax = sizes.iter().copied().max().unwrap_or(1) / 2;
     let tw = width.min(TILE_W);
     let th = TILE_H;
-    let t = th + 2 * rmax;
+    // Carried rows: the tile, its halo, and up to k - 1 rows more so that the
+    // prefix/suffix blocks start on absolute multiples of k.
+    let t = th + 4 * rmax;
     let l = tw + 2 * rmax;
     let ch = channels;
     let m = sizes.len();
@@ -99,13 +94,7 @@ pub(crate) fn fused<S: FloatElement>(
     }
 }
 
-pub(crate) fn kernels<S: FloatElement>(
-    isa: Isa,
-    k: usize,
-    logits: &View<'_, S>,
-    dst: &mut ViewMut<'_, S>,
-    y0: usize,
-) {
+pub(crate) fn kernels<S: FloatElement>(isa: Isa, k: usize, logits: &View<'_, S>, dst: &mut ViewMut<'_, S>, y0: usize) {
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked support.
@@ -167,12 +156,7 @@ pub(crate) fn direct_pixel<S: FloatElement>(
 }
 
 /// Fusion weights at one pixel: softmax over the `m` planes of `f`, max-shifted.
-pub(crate) fn alpha_pixel<S: FloatElement>(
-    f: &View<'_, S>,
-    y: usize,
-    x: usize,
-    out: &mut [f32; MAX_FUSED],
-) {
+pub(crate) fn alpha_pixel<S: FloatElement>(f: &View<'_, S>, y: usize, x: usize, out: &mut [f32; MAX_FUSED]) {
     let m = f.channels();
     let mut mx = f32::NEG_INFINITY;
     for i in 0..m {
@@ -189,7 +173,12 @@ pub(crate) fn alpha_pixel<S: FloatElement>(
     }
 }
 
-/// The box-sum path, tile by tile.
+/// The box-sum path, tile by tile. Tiles sit on a fixed grid of the whole
+/// image (multiples of `TILE_H` rows and `TILE_W` columns) and the shift of a
+/// tile is the maximum over the whole grid cell and its halo, whatever band of
+/// rows is asked for; the vertical blocks start on absolute multiples of `k`.
+/// So every output value depends only on its position, never on how the rows
+/// were split into bands (the host's threads give bit-identical results).
 fn boxsum<S: FloatElement, O: Ops>(
     o: &O,
     inp: &FusedInputs<'_, S>,
@@ -198,27 +187,35 @@ fn boxsum<S: FloatElement, O: Ops>(
     scratch: &mut [f32],
 ) {
     let w = inp.radiance.width();
-    let hd = dst.height();
-    let mut ty = 0;
-    while ty < hd {
-        let th = TILE_H.min(hd - ty);
+    let y_end = y0 + dst.height();
+    let mut y = y0;
+    while y < y_end {
+        let cell = y - y % TILE_H;
+        let rows = (cell + TILE_H).min(y_end) - y;
         let mut tx = 0;
         while tx < w {
             let tw = TILE_W.min(w - tx);
-            tile(o, inp, dst, y0, ty, th, tx, tw, scratch);
+            tile(o, inp, dst, y0, cell, y, rows, tx, tw, scratch);
             tx += tw;
         }
-        ty += th;
+        y += rows;
     }
 }
 
+/// Euclidean floor of `a / k` times `k` for possibly negative rows.
+fn block_start(a: isize, k: usize) -> isize {
+    a.div_euclid(k as isize) * k as isize
+}
+
+/// Output rows `ytop .. ytop + th` (inside grid cell `cell ..`), columns `tx .. tx + tw`.
 #[allow(clippy::too_many_arguments)]
 fn tile<S: FloatElement, O: Ops>(
     o: &O,
     inp: &FusedInputs<'_, S>,
     dst: &mut ViewMut<'_, S>,
     y0: usize,
-    ty: usize,
+    cell: usize,
+    ytop: usize,
     th: usize,
     tx: usize,
     tw: usize,
@@ -230,7 +227,7 @@ fn tile<S: FloatElement, O: Ops>(
     let m = inp.sizes.len();
     let rmax = inp.sizes.iter().copied().max().unwrap_or(1) / 2;
     let np = 1 + ch; // planes carried: weight sum, then one per channel
-    let tmax = th + 2 * rmax;
+    let tmax = th + 4 * rmax;
     let lmax = tw + 2 * rmax;
     let (acc, rest) = scratch.split_at_mut(ch * th * tw);
     let (alpha, rest) = rest.split_at_mut(m * th * tw);
@@ -239,7 +236,6 @@ fn tile<S: FloatElement, O: Ops>(
     let (erow, rest) = rest.split_at_mut(np * lmax);
     let lv = &mut rest[..3 * lmax];
     acc.fill(0.0);
-    let ytop = y0 + ty; // image row of the tile's first output row
     match &inp.fusion {
         Some(f) => {
             for t in 0..th {
@@ -250,26 +246,31 @@ fn tile<S: FloatElement, O: Ops>(
     }
     for (i, &k) in inp.sizes.iter().enumerate() {
         let r = k / 2;
-        let tt = th + 2 * r; // rows carried for this size
+        let ri = r as isize;
         let l = tw + 2 * r; // columns carried for this size
-        let ybase = ytop as isize - r as isize;
-        let xbase = tx as isize - r as isize;
+        let xbase = tx as isize - ri;
         let u0 = (-xbase).max(0) as usize;
         let u1 = ((w as isize - xbase).min(l as isize)) as usize;
         let xs = (xbase + u0 as isize) as usize; // image column of erow[u0]
         let xe = xs + (u1 - u0);
 
-        // The tile's shift: the largest (clamped) logit anywhere it reads.
+        // The shift: the largest (clamped) logit of the whole grid cell and its halo.
         let mut shift = f32::NEG_INFINITY;
-        for t in 0..tt {
-            let yy = ybase + t as isize;
-            if yy >= 0 && (yy as usize) < h {
-                shift = shift.max(o.row_max(&imp.row(i, yy as usize)[xs..xe]));
-            }
+        let sy0 = cell.saturating_sub(r);
+        let sy1 = (cell + TILE_H + r).min(h);
+        for yy in sy0..sy1 {
+            shift = shift.max(o.row_max(&imp.row(i, yy)[xs..xe]));
         }
         let shift = clamp_logit(shift);
 
+        // Carried rows: from the start of the block holding the first window's
+        // top row to the last window's bottom row.
+        let ybase = block_start(ytop as isize - ri, k);
+        let tt = (ytop + th + r) as isize - ybase;
+        let tt = tt as usize;
         let row_at = |q: usize, t: usize| (q * tt + t) * tw;
+        // Absolute row of carried row t is ybase + t; blocks start where that is 0 mod k.
+        let block_pos = |t: usize| (ybase + t as isize).rem_euclid(k as isize) as usize;
         for t in 0..tt {
             let yy = ybase + t as isize;
             if yy < 0 || yy as usize >= h {
@@ -293,10 +294,10 @@ fn tile<S: FloatElement, O: Ops>(
                     o.box_sum(v, k, &mut a_buf[row_at(q, t)..row_at(q, t) + tw], lv);
                 }
             }
-            // Prefix within blocks of k rows (blocks start at t = 0).
+            // Prefix within blocks of k rows.
             for q in 0..np {
                 let at = row_at(q, t);
-                if t % k == 0 {
+                if block_pos(t) == 0 || t == 0 {
                     p_buf[at..at + tw].copy_from_slice(&a_buf[at..at + tw]);
                 } else {
                     let (prev, cur) = p_buf.split_at_mut(at);
@@ -305,8 +306,9 @@ fn tile<S: FloatElement, O: Ops>(
             }
         }
         // Suffix within blocks, in place, walking up; emit windows as they complete.
+        let first_out = (ytop as isize - ri - ybase) as usize; // carried row of the first window's top
         for t in (0..tt).rev() {
-            let block_last = t % k == k - 1 || t == tt - 1;
+            let block_last = block_pos(t) == k - 1 || t == tt - 1;
             if !block_last {
                 for q in 0..np {
                     let at = row_at(q, t);
@@ -314,13 +316,14 @@ fn tile<S: FloatElement, O: Ops>(
                     o.add_assign(&mut cur[at..], &next[..tw]);
                 }
             }
-            if t < th {
-                // Window rows t ..= t + k - 1: one whole block, or a suffix plus a prefix.
-                let second = (t % k != 0).then_some(t + k - 1);
+            if t >= first_out && t < first_out + th {
+                let ot = t - first_out; // output row within the tile
+                                        // Window rows t ..= t + k - 1: one whole block, or a suffix plus a prefix.
+                let second = (block_pos(t) != 0).then_some(t + k - 1);
                 let s_rows = &a_buf[row_at(0, t)..];
                 let p_rows = second.map(|t2| &p_buf[row_at(0, t2)..]);
-                let arow = &alpha[(i * th + t) * tw..(i * th + t + 1) * tw];
-                let acc_row = &mut acc[t * tw..];
+                let arow = &alpha[(i * th + ot) * tw..(i * th + ot + 1) * tw];
+                let acc_row = &mut acc[ot * tw..];
                 let any_tiny = o.accumulate(s_rows, p_rows, tt * tw, ch, arow, acc_row, th * tw);
                 if any_tiny {
                     for x in 0..tw {
@@ -332,9 +335,9 @@ fn tile<S: FloatElement, O: Ops>(
                             continue;
                         }
                         let mut rr = [0.0f32; MAX_CHANNELS];
-                        direct_pixel(k, imp, i, rad, ytop + t, tx + x, &mut rr);
+                        direct_pixel(k, imp, i, rad, ytop + ot, tx + x, &mut rr);
                         for c in 0..ch {
-                            acc[(c * th + t) * tw + x] += rr[c] * arow[x];
+                            acc[(c * th + ot) * tw + x] += rr[c] * arow[x];
                         }
                     }
                 }
@@ -345,7 +348,7 @@ fn tile<S: FloatElement, O: Ops>(
         for c in 0..ch {
             let a = &acc[(c * th + t) * tw..(c * th + t + 1) * tw];
             let alb = inp.albedo.as_ref().map(|v| &v.row(c, ytop + t)[tx..tx + tw]);
-            o.finish(a, alb, &mut dst.row_mut(c, ty + t)[tx..tx + tw]);
+            o.finish(a, alb, &mut dst.row_mut(c, ytop - y0 + t)[tx..tx + tw]);
         }
     }
 }

@@ -85,14 +85,7 @@ impl Ops for ScalarOps {
         }
     }
 
-    fn alphas<S: FloatElement>(
-        &self,
-        f: &View<'_, S>,
-        y: usize,
-        x0: usize,
-        out: &mut [f32],
-        stride: usize,
-    ) {
+    fn alphas<S: FloatElement>(&self, f: &View<'_, S>, y: usize, x0: usize, out: &mut [f32], stride: usize) {
         let m = f.channels();
         let n = out.len().min(stride);
         let mut a = [0.0f32; MAX_FUSED];
@@ -192,13 +185,7 @@ pub(crate) fn direct<S: FloatElement>(inp: &FusedInputs<'_, S>, dst: &mut ViewMu
 
 /// The weights of the window of size `k` around `(y, x)`, tap `j` into `w[j]`
 /// (0 for out-of-image taps).
-pub(crate) fn kernel_pixel<S: FloatElement>(
-    k: usize,
-    logits: &View<'_, S>,
-    y: usize,
-    x: usize,
-    w: &mut [f32],
-) {
+pub(crate) fn kernel_pixel<S: FloatElement>(k: usize, logits: &View<'_, S>, y: usize, x: usize, w: &mut [f32]) {
     let (wd, h) = (logits.width(), logits.height());
     let r = k / 2;
     let inside = |yy: usize, xx: usize| {

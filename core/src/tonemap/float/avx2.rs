@@ -22,9 +22,7 @@ pub(crate) unsafe fn map_row<S: FloatElement>(op: Map, src: &[S], dst: &mut [S])
         // NaN to 0: keep lanes equal to themselves.
         let v = _mm256_and_ps(v, _mm256_cmp_ps::<_CMP_EQ_OQ>(v, v));
         let r = match op {
-            Map::Sanitize { limit } => {
-                _mm256_min_ps(_mm256_max_ps(v, _mm256_set1_ps(-limit)), _mm256_set1_ps(limit))
-            }
+            Map::Sanitize { limit } => _mm256_min_ps(_mm256_max_ps(v, _mm256_set1_ps(-limit)), _mm256_set1_ps(limit)),
             Map::Gamma { gamma, clamp } => {
                 let mut t = _mm256_max_ps(v, zero);
                 if clamp {
@@ -54,7 +52,13 @@ pub(crate) unsafe fn map_row<S: FloatElement>(op: Map, src: &[S], dst: &mut [S])
 /// # Safety
 /// AVX2, FMA and F16C must be supported.
 #[target_feature(enable = "avx2,fma,f16c")]
-pub(crate) unsafe fn modulate_row<S: FloatElement>(divide: bool, src: &[S], alb: &[S], eps: f32, dst: &mut [S]) -> usize {
+pub(crate) unsafe fn modulate_row<S: FloatElement>(
+    divide: bool,
+    src: &[S],
+    alb: &[S],
+    eps: f32,
+    dst: &mut [S],
+) -> usize {
     let n = src.len().min(dst.len()).min(alb.len());
     let e = _mm256_set1_ps(eps);
     let mut x = 0;

@@ -16,7 +16,14 @@ pub(crate) fn map_row<S: FloatElement>(op: Map, src: &[S], dst: &mut [S], x_from
 }
 
 /// Scalar (de)modulation of a row from `x_from` on.
-pub(crate) fn modulate_row<S: FloatElement>(divide: bool, src: &[S], alb: &[S], eps: f32, dst: &mut [S], x_from: usize) {
+pub(crate) fn modulate_row<S: FloatElement>(
+    divide: bool,
+    src: &[S],
+    alb: &[S],
+    eps: f32,
+    dst: &mut [S],
+    x_from: usize,
+) {
     for ((o, &v), &a) in dst.iter_mut().zip(src).zip(alb).skip(x_from) {
         let d = a.to_f32() + eps;
         *o = S::from_f32(if divide { v.to_f32() / d } else { v.to_f32() * d });

@@ -1,0 +1,227 @@
+//! f64 reference implementations, straight from the equations.
+
+/// Index of `(c, y, x)` in a planar `w x h` buffer.
+#[inline]
+fn ix(c: usize, y: usize, x: usize, w: usize, h: usize) -> usize {
+    (c * h + y) * w + x
+}
+
+fn tap(y: usize, x: usize, dy: isize, dx: isize, w: usize, h: usize) -> Option<(usize, usize)> {
+    let yy = y as isize + dy;
+    let xx = x as isize + dx;
+    (yy >= 0 && xx >= 0 && (yy as usize) < h && (xx as usize) < w).then(|| (yy as usize, xx as usize))
+}
+
+/// `out_c(p) = sum_j K_j(p) r_c(p + o_j)`, out-of-image taps zero.
+pub fn unfold(k: usize, kernel: &[f64], src: &[f64], c: usize, w: usize, h: usize) -> Vec<f64> {
+    let r = (k / 2) as isize;
+    let mut out = vec![0.0; c * w * h];
+    for ch in 0..c {
+        for y in 0..h {
+            for x in 0..w {
+                let mut s = 0.0;
+                for ky in 0..k {
+                    for kx in 0..k {
+                        if let Some((yy, xx)) = tap(y, x, ky as isize - r, kx as isize - r, w, h) {
+                            s += kernel[ix(ky * k + kx, y, x, w, h)] * src[ix(ch, yy, xx, w, h)];
+                        }
+                    }
+                }
+                out[ix(ch, y, x, w, h)] = s;
+            }
+        }
+    }
+    out
+}
+
+/// Clamps a logit the way the kernels document (±1e30, NaN to -1e30).
+pub fn clamp_logit(v: f64) -> f64 {
+    if v.is_nan() {
+        -1e30
+    } else {
+        v.clamp(-1e30, 1e30)
+    }
+}
+
+/// Per-pixel softmax weights over the window `k` (WSKP eq. 3), tap-major planes.
+pub fn importance_kernels(k: usize, logits: &[f64], w: usize, h: usize) -> Vec<f64> {
+    let r = (k / 2) as isize;
+    let mut out = vec![0.0; k * k * w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let mut m = f64::NEG_INFINITY;
+            for ky in 0..k {
+                for kx in 0..k {
+                    if let Some((yy, xx)) = tap(y, x, ky as isize - r, kx as isize - r, w, h) {
+                        m = m.max(clamp_logit(logits[ix(0, yy, xx, w, h)]));
+                    }
+                }
+            }
+            let mut den = 0.0;
+            for ky in 0..k {
+                for kx in 0..k {
+                    if let Some((yy, xx)) = tap(y, x, ky as isize - r, kx as isize - r, w, h) {
+                        den += (clamp_logit(logits[ix(0, yy, xx, w, h)]) - m).exp();
+                    }
+                }
+            }
+            for ky in 0..k {
+                for kx in 0..k {
+                    if let Some((yy, xx)) = tap(y, x, ky as isize - r, kx as isize - r, w, h) {
+                        out[ix(ky * k + kx, y, x, w, h)] = (clamp_logit(logits[ix(0, yy, xx, w, h)]) - m).exp() / den;
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Single-size importance filter (WSKP eq. 4).
+pub fn window_filter(k: usize, logits: &[f64], rad: &[f64], c: usize, w: usize, h: usize) -> Vec<f64> {
+    let kern = importance_kernels(k, logits, w, h);
+    unfold(k, &kern, rad, c, w, h)
+}
+
+/// Softmax over `n` planes at every pixel.
+pub fn channel_softmax(src: &[f64], n: usize, w: usize, h: usize) -> Vec<f64> {
+    let mut out = vec![0.0; n * w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let m = (0..n).map(|c| clamp_logit(src[ix(c, y, x, w, h)])).fold(f64::NEG_INFINITY, f64::max);
+            let den: f64 = (0..n).map(|c| (clamp_logit(src[ix(c, y, x, w, h)]) - m).exp()).sum();
+            for c in 0..n {
+                out[ix(c, y, x, w, h)] = (clamp_logit(src[ix(c, y, x, w, h)]) - m).exp() / den;
+            }
+        }
+    }
+    out
+}
+
+/// Fused filter (WSKP eq. 5): `albedo * sum_i alpha_i R_i`.
+#[allow(clippy::too_many_arguments)]
+pub fn fused(
+    sizes: &[usize],
+    imp: &[f64],
+    fusion: Option<&[f64]>,
+    albedo: Option<&[f64]>,
+    rad: &[f64],
+    c: usize,
+    w: usize,
+    h: usize,
+) -> Vec<f64> {
+    let m = sizes.len();
+    let plane = w * h;
+    let alpha = match fusion {
+        Some(f) => channel_softmax(f, m, w, h),
+        None => vec![1.0; plane],
+    };
+    let mut out = vec![0.0; c * plane];
+    for (i, &k) in sizes.iter().enumerate() {
+        let ri = window_filter(k, &imp[i * plane..(i + 1) * plane], rad, c, w, h);
+        for ch in 0..c {
+            for p in 0..plane {
+                out[ch * plane + p] += alpha[i * plane + p] * ri[ch * plane + p];
+            }
+        }
+    }
+    if let Some(a) = albedo {
+        for (o, &al) in out.iter_mut().zip(a) {
+            *o *= al;
+        }
+    }
+    out
+}
+
+/// Mean (or max) of the in-image pixels of each 2x2 cell.
+pub fn reduce2x2(src: &[f64], c: usize, w: usize, h: usize, max: bool) -> Vec<f64> {
+    let (wc, hc) = (w.div_ceil(2), h.div_ceil(2));
+    let mut out = vec![0.0; c * wc * hc];
+    for ch in 0..c {
+        for yc in 0..hc {
+            for xc in 0..wc {
+                let mut vals = Vec::new();
+                for y in 2 * yc..(2 * yc + 2).min(h) {
+                    for x in 2 * xc..(2 * xc + 2).min(w) {
+                        vals.push(src[ix(ch, y, x, w, h)]);
+                    }
+                }
+                out[ix(ch, yc, xc, wc, hc)] = if max {
+                    vals.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+                } else {
+                    vals.iter().sum::<f64>() / vals.len() as f64
+                };
+            }
+        }
+    }
+    out
+}
+
+/// Nearest upsample of a `ceil(w/2) x ceil(h/2)` image to `w x h`.
+pub fn upsample(src: &[f64], c: usize, w: usize, h: usize) -> Vec<f64> {
+    let (wc, hc) = (w.div_ceil(2), h.div_ceil(2));
+    let mut out = vec![0.0; c * w * h];
+    for ch in 0..c {
+        for y in 0..h {
+            for x in 0..w {
+                out[ix(ch, y, x, w, h)] = src[ix(ch, y / 2, x / 2, wc, hc)];
+            }
+        }
+    }
+    out
+}
+
+/// `o = f - a U(D(f)) + a U(c)` with a one-plane `a`.
+pub fn composite(fine: &[f64], coarse: &[f64], alpha: &[f64], c: usize, w: usize, h: usize) -> Vec<f64> {
+    let ud = upsample(&reduce2x2(fine, c, w, h, false), c, w, h);
+    let uc = upsample(coarse, c, w, h);
+    let plane = w * h;
+    let mut out = vec![0.0; c * plane];
+    for ch in 0..c {
+        for p in 0..plane {
+            let i = ch * plane + p;
+            out[i] = fine[i] - alpha[p] * ud[i] + alpha[p] * uc[i];
+        }
+    }
+    out
+}
+
+/// Convolution with zero padding, `[cout][cin][k][k]` weights.
+#[allow(clippy::too_many_arguments)]
+pub fn conv2d(
+    k: usize,
+    cin: usize,
+    cout: usize,
+    weights: &[f64],
+    bias: Option<&[f64]>,
+    leaky: Option<f64>,
+    src: &[f64],
+    w: usize,
+    h: usize,
+) -> Vec<f64> {
+    let r = (k / 2) as isize;
+    let mut out = vec![0.0; cout * w * h];
+    for co in 0..cout {
+        for y in 0..h {
+            for x in 0..w {
+                let mut s = bias.map_or(0.0, |b| b[co]);
+                for ci in 0..cin {
+                    for ky in 0..k {
+                        for kx in 0..k {
+                            if let Some((yy, xx)) = tap(y, x, ky as isize - r, kx as isize - r, w, h) {
+                                s += weights[((co * cin + ci) * k + ky) * k + kx] * src[ix(ci, yy, xx, w, h)];
+                            }
+                        }
+                    }
+                }
+                if let Some(slope) = leaky {
+                    if s < 0.0 {
+                        s *= slope;
+                    }
+                }
+                out[ix(co, y, x, w, h)] = s;
+            }
+        }
+    }
+    out
+}
