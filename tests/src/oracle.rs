@@ -1,4 +1,5 @@
 //! f64 reference implementations, straight from the equations.
+#![allow(clippy::needless_range_loop)]
 
 /// Index of `(c, y, x)` in a planar `w x h` buffer.
 #[inline]
@@ -9,7 +10,7 @@ fn ix(c: usize, y: usize, x: usize, w: usize, h: usize) -> usize {
 fn tap(y: usize, x: usize, dy: isize, dx: isize, w: usize, h: usize) -> Option<(usize, usize)> {
     let yy = y as isize + dy;
     let xx = x as isize + dx;
-    (yy >= 0 && xx >= 0 && (yy as usize) < h && (xx as usize) < w).then(|| (yy as usize, xx as usize))
+    (yy >= 0 && xx >= 0 && (yy as usize) < h && (xx as usize) < w).then_some((yy as usize, xx as usize))
 }
 
 /// `out_c(p) = sum_j K_j(p) r_c(p + o_j)`, out-of-image taps zero.

@@ -9,6 +9,9 @@ use mcdenoise_core::{unfold, Isa, View, ViewMut, F32};
 use mcdenoise_tests::{assert_close, isas_under_test, oracle, Img};
 use proptest::prelude::*;
 
+/// A map, its f64 definition, its relative tolerance.
+type Case = (Map, fn(f64) -> f64, f64);
+
 fn odd_k(max: usize) -> impl Strategy<Value = usize> {
     (0..=(max / 2)).prop_map(|i| 2 * i + 1)
 }
@@ -140,7 +143,7 @@ proptest! {
         let src = Img::random(3, w, 2, -2.0, 40.0, seed);
         let alb = Img::random(3, w, 2, 0.0, 1.0, seed ^ 7);
         for isa in isas_under_test() {
-            let cases: [(Map, fn(f64) -> f64, f64); 5] = [
+            let cases: [Case; 5] = [
                 (Map::Gamma { gamma: 2.2, clamp: true }, |x| x.clamp(0.0, 1.0).powf(1.0 / 2.2), 3e-6),
                 (Map::Gamma { gamma: 2.2, clamp: false }, |x| x.max(0.0).powf(1.0 / 2.2), 3e-6),
                 (Map::Filmic, |x| { let v = x.max(0.0); ((v * (2.51 * v + 0.03)) / (v * (2.43 * v + 0.59) + 0.14)).clamp(0.0, 1.0) }, 1e-6),
