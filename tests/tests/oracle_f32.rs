@@ -219,3 +219,32 @@ fn shape_errors_are_reported_not_panicked() {
     assert!(View::new(&[0.0f32; 10], 1, 4, 3).is_err());
     assert!(ViewMut::new(&mut [0.0f32; 12], 1, usize::MAX, 2).is_err());
 }
+
+#[test]
+fn fused_across_many_tiles_matches_oracle() {
+    // Wider than one 256-column tile and taller than one 48-row tile, with a
+    // band split that cuts a tile, so halos, grid alignment and block starts
+    // across tiles are all exercised.
+    let (w, h) = (300, 110);
+    let sizes = [3, 9, 15];
+    let imp = Img::random(3, w, h, -12.0, 12.0, 21);
+    let fus = Img::random(3, w, h, -4.0, 4.0, 22);
+    let alb = Img::random(3, w, h, 0.0, 1.0, 23);
+    let rad = Img::random(3, w, h, 0.0, 20.0, 24);
+    let want = oracle::fused(&sizes, &imp.to_f64(), Some(&fus.to_f64()), Some(&alb.to_f64()), &rad.to_f64(), 3, w, h);
+    for isa in isas_under_test() {
+        let inp = FusedInputs {
+            sizes: &sizes,
+            importance: imp.view(),
+            fusion: Some(fus.view()),
+            albedo: Some(alb.view()),
+            radiance: rad.view(),
+        };
+        let mut scratch = vec![0.0; softmax::fused_scratch_len::<F32>(WindowPath::BoxSum, &sizes, 3, w)];
+        let mut out = Img::filled(3, w, h, f32::NAN);
+        let (mut top, mut bottom) = out.view_mut().split_rows_at(70);
+        softmax::fused_filter::<F32>(isa, WindowPath::BoxSum, &inp, &mut top, 0, &mut scratch).unwrap();
+        softmax::fused_filter::<F32>(isa, WindowPath::BoxSum, &inp, &mut bottom, 70, &mut scratch).unwrap();
+        assert_close(&format!("fused many tiles {isa:?}"), &out.data, &want, 1e-4, 3e-5);
+    }
+}

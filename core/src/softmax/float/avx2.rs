@@ -174,10 +174,9 @@ fn alphas8<S: FloatElement>(f: &View<'_, S>, y: usize, x: usize) -> [__m256; MAX
 }
 
 #[target_feature(enable = "avx2,fma,f16c")]
-fn alphas<S: FloatElement>(f: &View<'_, S>, y: usize, x0: usize, out: &mut [f32], stride: usize) {
+fn alphas<S: FloatElement>(f: &View<'_, S>, y: usize, x0: usize, n: usize, out: &mut [f32], stride: usize) {
     let m = f.channels();
-    let n = out.len().min(stride).min(f.width() - x0);
-    assert!(m == 0 || out.len() >= (m - 1) * stride + n);
+    assert!(x0 + n <= f.width() && n <= stride && (m == 0 || out.len() >= (m - 1) * stride + n));
     let mut x = 0;
     while x + 8 <= n {
         let a = alphas8(f, y, x0 + x);
@@ -310,9 +309,9 @@ impl Ops for Avx2Ops {
         // SAFETY: as above.
         unsafe { acc_off(a, b, 0, n) }
     }
-    fn alphas<S: FloatElement>(&self, f: &View<'_, S>, y: usize, x0: usize, out: &mut [f32], stride: usize) {
+    fn alphas<S: FloatElement>(&self, f: &View<'_, S>, y: usize, x0: usize, n: usize, out: &mut [f32], stride: usize) {
         // SAFETY: as above.
-        unsafe { alphas(f, y, x0, out, stride) }
+        unsafe { alphas(f, y, x0, n, out, stride) }
     }
     fn accumulate(
         &self,

@@ -36,9 +36,9 @@ pub(crate) trait Ops {
     fn add(&self, a: &[f32], b: &[f32], out: &mut [f32]);
     /// `a += b`.
     fn add_assign(&self, a: &mut [f32], b: &[f32]);
-    /// Softmax over `m` fusion logit rows at columns `x0 .. x0 + n` of row `y`:
+    /// Softmax over the fusion planes at columns `x0 .. x0 + n` of row `y` (for `x < n`):
     /// `out[i * stride + x] = alpha_i`.
-    fn alphas<S: FloatElement>(&self, f: &View<'_, S>, y: usize, x0: usize, out: &mut [f32], stride: usize);
+    fn alphas<S: FloatElement>(&self, f: &View<'_, S>, y: usize, x0: usize, n: usize, out: &mut [f32], stride: usize);
     /// For every x with `den >= TINY`: `acc_c += num_c * (alpha / den)` where
     /// `den = s[0] (+ p[0])`, `num_c = s[1 + c] (+ p[1 + c])`; row `p` of
     /// plane `q` starts at `q * plane`. Returns whether any x had `den < TINY`.
@@ -239,7 +239,7 @@ fn tile<S: FloatElement, O: Ops>(
     match &inp.fusion {
         Some(f) => {
             for t in 0..th {
-                o.alphas(f, ytop + t, tx, &mut alpha[t * tw..], th * tw);
+                o.alphas(f, ytop + t, tx, tw, &mut alpha[t * tw..], th * tw);
             }
         }
         None => alpha[..th * tw].fill(1.0),

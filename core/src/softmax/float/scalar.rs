@@ -85,11 +85,10 @@ impl Ops for ScalarOps {
         }
     }
 
-    fn alphas<S: FloatElement>(&self, f: &View<'_, S>, y: usize, x0: usize, out: &mut [f32], stride: usize) {
+    fn alphas<S: FloatElement>(&self, f: &View<'_, S>, y: usize, x0: usize, n: usize, out: &mut [f32], stride: usize) {
         let m = f.channels();
-        let n = out.len().min(stride);
         let mut a = [0.0f32; MAX_FUSED];
-        for x in 0..n.min(f.width() - x0) {
+        for x in 0..n {
             alpha_pixel(f, y, x0 + x, &mut a);
             for i in 0..m {
                 out[i * stride + x] = a[i];
