@@ -34,6 +34,7 @@ pub mod pool;
 pub mod precision;
 pub mod simd;
 pub mod softmax;
+pub mod temporal;
 pub mod tonemap;
 pub mod unfold;
 pub mod view;
