@@ -452,6 +452,8 @@ class SceneDesc:
         kind = e['type']
         out = {'type': kind}
         if kind == 'spot' or ('origin' in e and 'target' in e):
+            if 'origin' not in e or 'target' not in e:
+                raise ValueError('%s emitter needs "origin" and "target"' % kind)
             out['to_world'] = mi.ScalarTransform4f(
                 look_at(e.pop('origin'), e.pop('target'), e.pop('up', [0, 1, 0])))
         if 'position' in e:

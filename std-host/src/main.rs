@@ -1,1 +1,46 @@
-fn main() {}
+//! The `mcdenoise` command.
+
+use std::process::ExitCode;
+
+use mcdenoise::cli::{self, Command};
+use mcdenoise::{run, HostError};
+
+fn main() -> ExitCode {
+    // A bug must still end in one line, not a backtrace.
+    std::panic::set_hook(Box::new(|info| {
+        let msg = info
+            .payload()
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| info.payload().downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "unknown panic".into());
+        let at = info.location().map(|l| format!(" at {}:{}", l.file(), l.line())).unwrap_or_default();
+        eprintln!("mcdenoise: internal error: {msg}{at} (please report this)");
+    }));
+    let result = match cli::parse(std::env::args_os().skip(1)) {
+        Ok(Command::Help) => {
+            print!("{}", cli::USAGE);
+            Ok(())
+        }
+        Ok(Command::Version) => {
+            println!("mcdenoise {}", env!("CARGO_PKG_VERSION"));
+            Ok(())
+        }
+        Ok(Command::Demo { settings }) => run::demo(&settings),
+        Ok(Command::Denoise(a)) => run::denoise_cmd(&a),
+        Ok(Command::Score { reference, output, json }) => run::score_cmd(&reference, &output, json),
+        Err(e) => Err(e),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e @ HostError::Usage(_)) => {
+            eprintln!("mcdenoise: {e}");
+            eprintln!("(see 'mcdenoise help')");
+            ExitCode::from(2)
+        }
+        Err(e) => {
+            eprintln!("mcdenoise: error: {e}");
+            ExitCode::from(1)
+        }
+    }
+}

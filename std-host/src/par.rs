@@ -104,4 +104,36 @@ impl Pool {
                 .try_for_each(|((mut band, y0), s)| f(&mut band, y0, &mut s[..scratch_len]))
         })
     }
+
+    /// Like [`Pool::bands`] for a kernel with two outputs of the same height
+    /// (split into the same bands).
+    pub fn bands2<T: Send, U: Send>(
+        &self,
+        a: ViewMut<'_, T>,
+        b: ViewMut<'_, U>,
+        align: usize,
+        scratch: &mut Scratch,
+        scratch_len: usize,
+        f: impl Fn(&mut ViewMut<'_, T>, &mut ViewMut<'_, U>, usize, &mut [f32]) -> CoreResult<()> + Sync,
+    ) -> CoreResult<()> {
+        assert_eq!(a.height(), b.height(), "bands2 outputs differ in height");
+        let starts = self.band_starts(a.height(), align);
+        scratch.ensure(starts.len(), scratch_len);
+        let mut bands = Vec::with_capacity(starts.len());
+        let (mut ra, mut rb) = (a, b);
+        for (i, &y0) in starts.iter().enumerate() {
+            let end = starts.get(i + 1).copied().unwrap_or(y0 + ra.height());
+            let (ba, ta) = ra.split_rows_at(end - y0);
+            let (bb, tb) = rb.split_rows_at(end - y0);
+            bands.push((ba, bb, y0));
+            ra = ta;
+            rb = tb;
+        }
+        self.pool.install(|| {
+            bands
+                .into_par_iter()
+                .zip(scratch.bufs.par_iter_mut())
+                .try_for_each(|((mut ba, mut bb, y0), s)| f(&mut ba, &mut bb, y0, &mut s[..scratch_len]))
+        })
+    }
 }

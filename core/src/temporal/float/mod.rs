@@ -23,7 +23,14 @@ fn dist2<S: FloatElement>(a: &View<'_, S>, ya: usize, xa: usize, b: &View<'_, S>
 }
 
 /// Whether previous pixel `(py, px)` may stand for current pixel `(y, x)`.
-fn agrees<S: FloatElement>(inp: &TemporalInputs<'_, S>, p: &TemporalParams, y: usize, x: usize, py: usize, px: usize) -> bool {
+fn agrees<S: FloatElement>(
+    inp: &TemporalInputs<'_, S>,
+    p: &TemporalParams,
+    y: usize,
+    x: usize,
+    py: usize,
+    px: usize,
+) -> bool {
     if let (Some(a), Some(b)) = (&inp.position, &inp.prev_position) {
         // `!(d < limit)` rejects NaN distances too.
         if !(dist2(a, y, x, b, py, px) < p.pos_limit * p.pos_limit) {

@@ -1,0 +1,182 @@
+//! Command-line parsing: a pure function from arguments to a [`Command`], so
+//! every bad argument gets a one-line message naming it (and the parser can be
+//! fuzzed without touching files).
+
+use std::ffi::OsString;
+use std::path::PathBuf;
+
+use mcdenoise_core::Isa;
+
+use crate::error::{HostError, Result};
+use crate::methods::{MethodKind, Settings};
+use crate::precision::PrecisionKind;
+
+/// Usage text.
+pub const USAGE: &str = "\
+mcdenoise: real-time Monte Carlo denoisers
+
+usage:
+  mcdenoise                      run every method on the bundled sample, print a table,
+                                 write outputs and PNGs under ./mcdenoise-out/
+  mcdenoise denoise --method M [options] INPUT... -o OUTDIR
+                                 INPUT: frame files in order, or a directory (its .exr files by name)
+      --method M                 none | ta
+      --precision P              f32 (default) | f16 | f16-arith | fixed
+      --threads N                worker threads (default: all cores)
+      --isa I                    scalar | avx2 | neon (default: the best this CPU has)
+      --half                     write f16 EXR (default f32)
+      --png                      also write a tone-mapped PNG preview per frame
+      --timings                  print per-stage times
+  mcdenoise score --reference REF OUT [--json]
+                                 REF and OUT: two files, or two directories (matched by name)
+  mcdenoise help | --help | --version
+";
+
+/// What to do.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Command {
+    /// The main job on the bundled sample.
+    Demo {
+        /// Shared settings.
+        settings: Settings,
+    },
+    /// Denoise a sequence.
+    Denoise(DenoiseArgs),
+    /// Score outputs against references.
+    Score {
+        /// Reference file or directory.
+        reference: PathBuf,
+        /// Output file or directory.
+        output: PathBuf,
+        /// Machine-readable output.
+        json: bool,
+    },
+    /// Print usage.
+    Help,
+    /// Print the version.
+    Version,
+}
+
+/// Arguments of `denoise`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DenoiseArgs {
+    /// Which method.
+    pub method: MethodKind,
+    /// Shared settings.
+    pub settings: Settings,
+    /// Input files or directories.
+    pub inputs: Vec<PathBuf>,
+    /// Output directory.
+    pub outdir: PathBuf,
+    /// f16 output.
+    pub half: bool,
+    /// PNG previews.
+    pub png: bool,
+    /// Per-stage times.
+    pub timings: bool,
+}
+
+fn usage(msg: impl Into<String>) -> HostError {
+    HostError::Usage(msg.into())
+}
+
+fn text(flag: &str, v: Option<OsString>) -> Result<String> {
+    let v = v.ok_or_else(|| usage(format!("{flag}: expects a value")))?;
+    v.into_string().map_err(|_| usage(format!("{flag}: value is not valid UTF-8")))
+}
+
+/// Parses a whole number in `lo..=hi` for `flag`.
+pub fn number(flag: &str, s: &str, lo: usize, hi: usize) -> Result<usize> {
+    match s.trim().parse::<usize>() {
+        Ok(v) if (lo..=hi).contains(&v) => Ok(v),
+        _ => Err(usage(format!("{flag}: expected a whole number from {lo} to {hi}, got '{s}'"))),
+    }
+}
+
+/// Default worker threads: every core.
+pub fn default_threads() -> usize {
+    std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
+}
+
+fn parse_settings(flag: &str, value: &str, s: &mut Settings) -> Result<bool> {
+    match flag {
+        "--precision" => s.precision = PrecisionKind::parse(value)?,
+        "--threads" => s.threads = number("--threads", value, 1, 256)?,
+        "--isa" => {
+            s.isa = Isa::from_name(value)
+                .ok_or_else(|| usage(format!("--isa: expected scalar, avx2 or neon; got '{value}'")))?
+        }
+        _ => return Ok(false),
+    }
+    Ok(true)
+}
+
+/// Parses the arguments after the program name.
+pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
+    let mut it = args.into_iter();
+    let mut settings = Settings { threads: default_threads(), ..Settings::default() };
+    let Some(first) = it.next() else { return Ok(Command::Demo { settings }) };
+    let first = first.into_string().map_err(|_| usage("command is not valid UTF-8"))?;
+    match first.as_str() {
+        "help" | "--help" | "-h" => Ok(Command::Help),
+        "--version" | "-V" => Ok(Command::Version),
+        "demo" => {
+            while let Some(a) = it.next() {
+                let a = a.into_string().map_err(|_| usage("argument is not valid UTF-8"))?;
+                let v = text(&a, it.next())?;
+                if !parse_settings(&a, &v, &mut settings)? {
+                    return Err(usage(format!("demo: unknown option '{a}'")));
+                }
+            }
+            Ok(Command::Demo { settings })
+        }
+        "denoise" => {
+            let mut method = None;
+            let (mut inputs, mut outdir) = (Vec::new(), None);
+            let (mut half, mut png, mut timings) = (false, false, false);
+            while let Some(a) = it.next() {
+                match a.to_str() {
+                    Some("--method") => method = Some(MethodKind::parse(&text("--method", it.next())?)?),
+                    Some("-o" | "--output") => {
+                        outdir = Some(PathBuf::from(it.next().ok_or_else(|| usage("-o: expects a directory"))?))
+                    }
+                    Some("--half") => half = true,
+                    Some("--png") => png = true,
+                    Some("--timings") => timings = true,
+                    Some(f @ ("--precision" | "--threads" | "--isa")) => {
+                        let f = f.to_string();
+                        let v = text(&f, it.next())?;
+                        parse_settings(&f, &v, &mut settings)?;
+                    }
+                    Some(f) if f.starts_with("--") => return Err(usage(format!("denoise: unknown option '{f}'"))),
+                    _ => inputs.push(PathBuf::from(a)),
+                }
+            }
+            let method = method.ok_or_else(|| usage("denoise: --method is required (none, ta)"))?;
+            let outdir = outdir.ok_or_else(|| usage("denoise: -o OUTDIR is required"))?;
+            if inputs.is_empty() {
+                return Err(usage("denoise: no INPUT given (frame files or a directory)"));
+            }
+            Ok(Command::Denoise(DenoiseArgs { method, settings, inputs, outdir, half, png, timings }))
+        }
+        "score" => {
+            let (mut reference, mut paths, mut json) = (None, Vec::new(), false);
+            while let Some(a) = it.next() {
+                match a.to_str() {
+                    Some("--reference" | "-r") => {
+                        reference = Some(PathBuf::from(it.next().ok_or_else(|| usage("--reference: expects a path"))?))
+                    }
+                    Some("--json") => json = true,
+                    Some(f) if f.starts_with("--") => return Err(usage(format!("score: unknown option '{f}'"))),
+                    _ => paths.push(PathBuf::from(a)),
+                }
+            }
+            let reference = reference.ok_or_else(|| usage("score: --reference REF is required"))?;
+            if paths.len() != 1 {
+                return Err(usage(format!("score: expected one OUT path, got {}", paths.len())));
+            }
+            Ok(Command::Score { reference, output: paths.remove(0), json })
+        }
+        other => Err(usage(format!("unknown command '{other}'; try 'mcdenoise help'"))),
+    }
+}

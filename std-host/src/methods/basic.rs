@@ -1,0 +1,176 @@
+//! The two baseline methods: pass-through and temporal accumulation.
+
+use std::marker::PhantomData;
+
+use mcdenoise_core::temporal::{self, TemporalInputs, TemporalParams};
+
+use super::{Ctx, Denoiser, Plan, Timings};
+use crate::error::{HostError, Result};
+use crate::frame::{Buffer, Frame};
+use crate::precision::{HostPrecision, Planes};
+
+/// `--method none`: the (sanitised) input through the pipeline's precision.
+pub struct Passthrough<P: HostPrecision> {
+    plan: Plan,
+    _p: PhantomData<P>,
+}
+
+impl<P: HostPrecision> Passthrough<P> {
+    /// For a sequence starting with `first`.
+    pub fn new(_first: &Frame) -> Self {
+        Passthrough { plan: Plan { built: vec!["encode", "decode"], skipped: vec![] }, _p: PhantomData }
+    }
+}
+
+impl<P: HostPrecision> Denoiser for Passthrough<P> {
+    fn name(&self) -> &'static str {
+        "none"
+    }
+    fn plan(&self) -> &Plan {
+        &self.plan
+    }
+    fn denoise(&mut self, f: &Frame, _ctx: &mut Ctx, t: &mut Timings) -> Result<Vec<f32>> {
+        let color = f.require(Buffer::Color, "none")?;
+        let enc = t.time("encode", || Planes::<P::Store>::encode::<P>(3, f.width, f.height, color));
+        Ok(t.time("decode", || enc.decode::<P>()))
+    }
+}
+
+/// The scene scale used for the temporal position test: the diagonal of the
+/// bounding box of the frame's hit positions (pixels with depth 0 or position
+/// exactly 0 are background). 1.0 when there are none.
+pub fn scene_scale(f: &Frame) -> f32 {
+    let Some(p) = f.get(Buffer::Position) else { return 1.0 };
+    let n = f.width * f.height;
+    let depth = f.get(Buffer::Depth);
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for i in 0..n {
+        let v = [p[i], p[n + i], p[2 * n + i]];
+        let background = v == [0.0; 3] || depth.is_some_and(|d| d[i] == 0.0);
+        if background {
+            continue;
+        }
+        for c in 0..3 {
+            lo[c] = lo[c].min(v[c]);
+            hi[c] = hi[c].max(v[c]);
+        }
+    }
+    let d2: f32 = (0..3).map(|c| (hi[c] - lo[c]).powi(2)).sum();
+    if d2.is_finite() && d2 > 0.0 {
+        d2.sqrt()
+    } else {
+        1.0
+    }
+}
+
+/// Fraction of the scene scale a reprojected tap's world position may differ by.
+pub const POSITION_TOLERANCE: f32 = 0.02;
+
+/// Temporal accumulation state (also a stage inside other methods).
+pub struct TemporalAccumulation<P: HostPrecision> {
+    plan: Plan,
+    params: TemporalParams,
+    use_normal: bool,
+    use_position: bool,
+    use_motion: bool,
+    prev: Option<History<P>>,
+}
+
+struct History<P: HostPrecision> {
+    color: Planes<P::Store>,
+    hist: Planes<P::Store>,
+    normal: Option<Planes<P::Store>>,
+    position: Option<Planes<P::Store>>,
+}
+
+impl<P: HostPrecision> TemporalAccumulation<P> {
+    /// For a sequence starting with `first`. With `required`, a frame without
+    /// motion or position is an error naming the missing buffers.
+    pub fn new(first: &Frame, required: bool) -> Result<Self> {
+        let use_motion = first.has(Buffer::Motion);
+        let use_position = first.has(Buffer::Position);
+        let use_normal = first.has(Buffer::Normal);
+        if required && !use_motion && !use_position {
+            return Err(HostError::MissingChannel {
+                path: first.path.clone(),
+                buffer: "motion or position",
+                wanted: "motion.X,motion.Y or position.X,position.Y,position.Z".into(),
+                needed_by: "temporal accumulation".into(),
+            });
+        }
+        let mut plan = Plan::default();
+        plan.built.push("temporal accumulation");
+        if !use_motion {
+            plan.skipped.push(("motion reprojection", "no motion vectors: reprojecting by world position".into()));
+        }
+        if !use_position {
+            plan.skipped.push(("position test", "no position".into()));
+        }
+        if !use_normal {
+            plan.skipped.push(("normal test", "no normal".into()));
+        }
+        let params = TemporalParams { pos_limit: POSITION_TOLERANCE * scene_scale(first), ..TemporalParams::default() };
+        Ok(TemporalAccumulation { plan, params, use_normal, use_position, use_motion, prev: None })
+    }
+
+    /// Accumulates one frame; returns the accumulated colour and the history counts.
+    pub fn step(
+        &mut self,
+        f: &Frame,
+        ctx: &mut Ctx,
+        t: &mut Timings,
+    ) -> Result<(&Planes<P::Store>, &Planes<P::Store>)> {
+        let (w, h) = (f.width, f.height);
+        let enc = |b: Buffer| f.get(b).map(|d| Planes::<P::Store>::encode::<P>(b.channels(), w, h, d));
+        let color = t.time("encode", || enc(Buffer::Color)).ok_or_else(|| HostError::bad(&f.path, "no colour"))?;
+        let normal = if self.use_normal { enc(Buffer::Normal) } else { None };
+        let position = if self.use_position { enc(Buffer::Position) } else { None };
+        let motion = if self.use_motion { enc(Buffer::Motion) } else { None };
+        if (self.use_motion && motion.is_none()) || (self.use_position && position.is_none()) {
+            return Err(HostError::bad(&f.path, "lacks a buffer the first frame of the sequence had"));
+        }
+        let next = match self.prev.take() {
+            None => History { color, hist: Planes::new(1, w, h), normal, position },
+            Some(prev) => {
+                let mut out = Planes::new(3, w, h);
+                let mut hist = Planes::new(1, w, h);
+                let inp = TemporalInputs {
+                    color: color.view(),
+                    normal: normal.as_ref().map(|p| p.view()),
+                    position: position.as_ref().map(|p| p.view()),
+                    motion: motion.as_ref().map(|p| p.view()),
+                    prev_color: prev.color.view(),
+                    prev_normal: prev.normal.as_ref().map(|p| p.view()),
+                    prev_position: prev.position.as_ref().map(|p| p.view()),
+                    prev_history: prev.hist.view(),
+                };
+                let params = self.params;
+                let isa = ctx.isa;
+                t.time("temporal accumulation", || {
+                    ctx.pool.bands2(out.view_mut(), hist.view_mut(), 1, &mut ctx.scratch, 0, |band, hb, y0, _| {
+                        temporal::accumulate::<P>(isa, &inp, &params, band, hb, y0)
+                    })
+                })?;
+                History { color: out, hist, normal, position }
+            }
+        };
+        self.prev = Some(next);
+        let p = self.prev.as_ref().expect("just set");
+        Ok((&p.color, &p.hist))
+    }
+}
+
+impl<P: HostPrecision> Denoiser for TemporalAccumulation<P> {
+    fn name(&self) -> &'static str {
+        "ta"
+    }
+    fn plan(&self) -> &Plan {
+        &self.plan
+    }
+    fn denoise(&mut self, f: &Frame, ctx: &mut Ctx, t: &mut Timings) -> Result<Vec<f32>> {
+        let (color, _) = self.step(f, ctx, t)?;
+        let color = color.clone();
+        Ok(t.time("decode", || color.decode::<P>()))
+    }
+}

@@ -1,0 +1,166 @@
+//! The denoising methods behind `mcdenoise denoise --method M`.
+//!
+//! A method looks at the first frame's channels and builds only the stages
+//! they allow: without albedo there is no (de)modulation, without motion and
+//! position no temporal accumulation. It says in one line what it built and
+//! what it skipped ([`Plan`]), allocates nothing for skipped stages, and a
+//! method that cannot run without a buffer names it.
+
+use std::time::{Duration, Instant};
+
+use mcdenoise_core::Isa;
+
+use crate::error::{HostError, Result};
+use crate::frame::Frame;
+use crate::par::{Pool, Scratch};
+use crate::precision::{HostPrecision, PrecisionKind};
+
+mod basic;
+
+pub use basic::{scene_scale, Passthrough, TemporalAccumulation};
+
+/// The methods, by command-line name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MethodKind {
+    /// The input, through the same I/O and precision (for scoring the input).
+    None,
+    /// Temporal accumulation only (the baseline every learned method is compared with).
+    Ta,
+}
+
+impl MethodKind {
+    /// Every method.
+    pub const ALL: [MethodKind; 2] = [MethodKind::None, MethodKind::Ta];
+
+    /// The command-line name.
+    pub fn name(self) -> &'static str {
+        match self {
+            MethodKind::None => "none",
+            MethodKind::Ta => "ta",
+        }
+    }
+
+    /// Parses a command-line name.
+    pub fn parse(s: &str) -> Result<MethodKind> {
+        MethodKind::ALL.into_iter().find(|m| m.name() == s).ok_or_else(|| {
+            let names: Vec<&str> = MethodKind::ALL.iter().map(|m| m.name()).collect();
+            HostError::Usage(format!("--method: expected one of {}; got '{s}'", names.join(", ")))
+        })
+    }
+}
+
+/// What a method built for a sequence and what it skipped.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Plan {
+    /// Stages that run, in order.
+    pub built: Vec<&'static str>,
+    /// Stages left out, with the reason.
+    pub skipped: Vec<(&'static str, String)>,
+}
+
+impl Plan {
+    /// One line for the user.
+    pub fn line(&self, method: &str) -> String {
+        let mut s =
+            format!("{method}: stages {}", if self.built.is_empty() { "none".into() } else { self.built.join(" -> ") });
+        if !self.skipped.is_empty() {
+            let sk: Vec<String> = self.skipped.iter().map(|(st, why)| format!("{st} ({why})")).collect();
+            s.push_str(&format!("; skipped: {}", sk.join(", ")));
+        }
+        s
+    }
+}
+
+/// Accumulated wall time per stage.
+#[derive(Clone, Debug, Default)]
+pub struct Timings {
+    stages: Vec<(&'static str, Duration, u32)>,
+}
+
+impl Timings {
+    /// Runs `f`, adding its time to `stage`.
+    pub fn time<T>(&mut self, stage: &'static str, f: impl FnOnce() -> T) -> T {
+        let t = Instant::now();
+        let r = f();
+        let d = t.elapsed();
+        match self.stages.iter_mut().find(|s| s.0 == stage) {
+            Some(s) => {
+                s.1 += d;
+                s.2 += 1;
+            }
+            None => self.stages.push((stage, d, 1)),
+        }
+        r
+    }
+    /// `(stage, total, calls)` in first-use order.
+    pub fn stages(&self) -> &[(&'static str, Duration, u32)] {
+        &self.stages
+    }
+    /// Sum over stages.
+    pub fn total(&self) -> Duration {
+        self.stages.iter().map(|s| s.1).sum()
+    }
+}
+
+/// Settings every method shares.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Settings {
+    /// Instruction set for every kernel.
+    pub isa: Isa,
+    /// Worker threads.
+    pub threads: usize,
+    /// Storage/arithmetic precision.
+    pub precision: PrecisionKind,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Settings { isa: Isa::detect(), threads: 1, precision: PrecisionKind::F32 }
+    }
+}
+
+/// What every denoiser runs with: the pool, the ISA and per-band scratch.
+pub struct Ctx {
+    /// Threads.
+    pub pool: Pool,
+    /// Instruction set.
+    pub isa: Isa,
+    /// Per-band scratch, kept across frames.
+    pub scratch: Scratch,
+}
+
+/// A denoiser for one sequence: frames go in in order.
+pub trait Denoiser {
+    /// The method's name.
+    fn name(&self) -> &'static str;
+    /// What it built and skipped.
+    fn plan(&self) -> &Plan;
+    /// Denoises the next frame into three f32 planes.
+    fn denoise(&mut self, frame: &Frame, ctx: &mut Ctx, t: &mut Timings) -> Result<Vec<f32>>;
+}
+
+/// Builds the denoiser for `kind` from the sequence's first frame.
+pub fn create(kind: MethodKind, settings: &Settings, first: &Frame) -> Result<Box<dyn Denoiser>> {
+    match settings.precision {
+        PrecisionKind::F32 => create_in::<mcdenoise_core::F32>(kind, first),
+        PrecisionKind::F16 => create_in::<mcdenoise_core::F16>(kind, first),
+        other => Err(HostError::Usage(format!(
+            "--precision {}: not available yet for method {} (f32 and f16 are)",
+            other.name(),
+            kind.name()
+        ))),
+    }
+}
+
+fn create_in<P: HostPrecision>(kind: MethodKind, first: &Frame) -> Result<Box<dyn Denoiser>> {
+    Ok(match kind {
+        MethodKind::None => Box::new(Passthrough::<P>::new(first)),
+        MethodKind::Ta => Box::new(TemporalAccumulation::<P>::new(first, true)?),
+    })
+}
+
+/// A context for `settings`.
+pub fn context(settings: &Settings) -> Result<Ctx> {
+    settings.isa.check().map_err(|e| HostError::Usage(format!("--isa: {e}")))?;
+    Ok(Ctx { pool: Pool::new(settings.threads).map_err(HostError::Usage)?, isa: settings.isa, scratch: Scratch::new() })
+}

@@ -1,0 +1,339 @@
+//! The commands behind the CLI: denoise a sequence, score outputs, the demo.
+
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use crate::cli::DenoiseArgs;
+use crate::error::{HostError, Result};
+use crate::frame::{check_same_size, Frame, Limits};
+use crate::methods::{self, MethodKind, Settings, Timings};
+use crate::metrics::{self, Scores};
+use crate::output;
+
+/// Input files: files as given, directories expanded to their `.exr` files in name order.
+pub fn list_inputs(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
+    let mut out = Vec::new();
+    for p in inputs {
+        let meta = std::fs::metadata(p).map_err(|e| HostError::read(p, e))?;
+        if meta.is_dir() {
+            let mut files: Vec<PathBuf> = std::fs::read_dir(p)
+                .map_err(|e| HostError::read(p, e))?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|f| f.is_file() && f.extension().is_some_and(|x| x.eq_ignore_ascii_case("exr")))
+                .collect();
+            files.sort();
+            if files.is_empty() {
+                return Err(HostError::bad(p, "directory holds no .exr files"));
+            }
+            out.extend(files);
+        } else {
+            out.push(p.clone());
+        }
+    }
+    let mut names = std::collections::HashSet::new();
+    for f in &out {
+        if !names.insert(f.file_name().map(|n| n.to_os_string())) {
+            return Err(HostError::bad(f, "two inputs have this file name; their outputs would collide"));
+        }
+    }
+    Ok(out)
+}
+
+/// What a sequence run produced.
+#[derive(Debug, Default)]
+pub struct RunReport {
+    /// Output files, in frame order.
+    pub outputs: Vec<PathBuf>,
+    /// Kernel-side times (I/O excluded).
+    pub timings: Timings,
+    /// Frames processed.
+    pub frames: usize,
+    /// The method's one-line plan.
+    pub plan: String,
+    /// Per-frame warnings (non-finite values replaced).
+    pub warnings: Vec<String>,
+}
+
+/// Denoises `inputs` with `method` into `outdir`.
+pub fn denoise_sequence(
+    method: MethodKind,
+    settings: &Settings,
+    inputs: &[PathBuf],
+    outdir: &Path,
+    half: bool,
+    png: bool,
+    mut on_frame: impl FnMut(usize, &[f32], &Frame),
+) -> Result<RunReport> {
+    let files = list_inputs(inputs)?;
+    let outputs: Vec<PathBuf> = files.iter().map(|f| outdir.join(f.file_name().expect("a file has a name"))).collect();
+    let pngs: Vec<PathBuf> = outputs.iter().map(|o| o.with_extension("png")).collect();
+    let mut all_out = outputs.clone();
+    if png {
+        all_out.extend(pngs.iter().cloned());
+    }
+    output::prepare_outputs(outdir, &files, &all_out)?;
+    let limits = Limits::default();
+    let first = Frame::load(&files[0], &limits)?;
+    let mut den = methods::create(method, settings, &first)?;
+    let mut ctx = methods::context(settings)?;
+    let mut report = RunReport { plan: den.plan().line(den.name()), ..RunReport::default() };
+    let bar = (files.len() > 1 && std::io::stderr().is_terminal()).then(|| {
+        let b = indicatif::ProgressBar::new(files.len() as u64);
+        b.set_style(
+            indicatif::ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} {msg}")
+                .expect("static template")
+                .progress_chars("=> "),
+        );
+        b.set_prefix(method.name());
+        b
+    });
+    let dims = (first.width, first.height);
+    let mut frame = Some(first);
+    for (i, path) in files.iter().enumerate() {
+        let f = match frame.take() {
+            Some(f) => f,
+            None => Frame::load(path, &limits)?,
+        };
+        check_same_size(&files[0], dims, &f)?;
+        if f.replaced_nonfinite > 0 {
+            report.warnings.push(format!(
+                "{}: {} non-finite values replaced (NaN by 0, inf by ±1e20)",
+                path.display(),
+                f.replaced_nonfinite
+            ));
+        }
+        let out = den.denoise(&f, &mut ctx, &mut report.timings)?;
+        on_frame(i, &out, &f);
+        output::write_rgb_exr(&outputs[i], f.width, f.height, &out, half)?;
+        if png {
+            output::write_png_preview(&pngs[i], f.width, f.height, &out)?;
+        }
+        report.frames += 1;
+        if let Some(b) = &bar {
+            b.inc(1);
+        }
+    }
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    report.outputs = outputs;
+    Ok(report)
+}
+
+/// `mcdenoise denoise`.
+pub fn denoise_cmd(a: &DenoiseArgs) -> Result<()> {
+    let t0 = Instant::now();
+    let rep = denoise_sequence(a.method, &a.settings, &a.inputs, &a.outdir, a.half, a.png, |_, _, _| {})?;
+    eprintln!("{}", rep.plan);
+    for w in &rep.warnings {
+        eprintln!("warning: {w}");
+    }
+    println!(
+        "{}: {} frame(s) -> {} in {:.2} s ({} threads, {}, {})",
+        a.method.name(),
+        rep.frames,
+        a.outdir.display(),
+        t0.elapsed().as_secs_f64(),
+        a.settings.threads,
+        a.settings.precision.name(),
+        a.settings.isa.name()
+    );
+    if a.timings {
+        print_timings(&rep.timings, rep.frames);
+    }
+    Ok(())
+}
+
+/// Prints per-stage totals and per-frame means.
+pub fn print_timings(t: &Timings, frames: usize) {
+    let frames = frames.max(1) as f64;
+    println!("{:<28} {:>10} {:>12}", "stage", "total ms", "ms/frame");
+    for (name, d, _) in t.stages() {
+        println!("{:<28} {:>10.2} {:>12.3}", name, ms(*d), ms(*d) / frames);
+    }
+    println!("{:<28} {:>10.2} {:>12.3}", "all kernels", ms(t.total()), ms(t.total()) / frames);
+}
+
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
+
+/// Loads the colour of a result or reference file.
+fn load_color(p: &Path) -> Result<Frame> {
+    Frame::load(p, &Limits::default())
+}
+
+/// Scores one file against one reference.
+pub fn score_files(out: &Path, reference: &Path) -> Result<Scores> {
+    let o = load_color(out)?;
+    let r = load_color(reference)?;
+    check_same_size(reference, (r.width, r.height), &o)?;
+    Ok(metrics::score(
+        o.get(crate::frame::Buffer::Color).expect("colour"),
+        r.get(crate::frame::Buffer::Color).expect("colour"),
+        o.width,
+        o.height,
+    ))
+}
+
+fn json_scores(name: &str, s: &Scores) -> String {
+    let num = |v: f64| if v.is_finite() { format!("{v:.6}") } else { "null".into() };
+    format!(
+        "{{\"file\":{},\"psnr\":{},\"ssim\":{},\"relmse\":{},\"smape\":{},\"rmse\":{}}}",
+        json_string(name),
+        num(s.psnr),
+        num(s.ssim),
+        num(s.relmse),
+        num(s.smape),
+        num(s.rmse)
+    )
+}
+
+/// A JSON string literal.
+pub fn json_string(s: &str) -> String {
+    let mut o = String::from("\"");
+    for c in s.chars() {
+        match c {
+            '"' => o.push_str("\\\""),
+            '\\' => o.push_str("\\\\"),
+            c if (c as u32) < 0x20 => o.push_str(&format!("\\u{:04x}", c as u32)),
+            c => o.push(c),
+        }
+    }
+    o.push('"');
+    o
+}
+
+/// Mean of scores.
+pub fn mean_scores(v: &[Scores]) -> Scores {
+    let n = v.len().max(1) as f64;
+    let m = |f: fn(&Scores) -> f64| v.iter().map(f).sum::<f64>() / n;
+    Scores {
+        psnr: m(|s| s.psnr),
+        ssim: m(|s| s.ssim),
+        relmse: m(|s| s.relmse),
+        smape: m(|s| s.smape),
+        rmse: m(|s| s.rmse),
+    }
+}
+
+/// `mcdenoise score`.
+pub fn score_cmd(reference: &Path, out: &Path, json: bool) -> Result<()> {
+    let pairs: Vec<(PathBuf, PathBuf)> = if out.is_dir() {
+        if !reference.is_dir() {
+            return Err(HostError::bad(reference, "OUT is a directory, so the reference must be one too"));
+        }
+        let files = list_inputs(&[out.to_path_buf()])?;
+        files
+            .into_iter()
+            .map(|f| {
+                let r = reference.join(f.file_name().expect("file"));
+                (f, r)
+            })
+            .collect()
+    } else {
+        vec![(out.to_path_buf(), reference.to_path_buf())]
+    };
+    let mut all = Vec::new();
+    let mut lines = Vec::new();
+    for (o, r) in &pairs {
+        if !r.exists() {
+            return Err(HostError::read(r, "no reference with this name"));
+        }
+        let s = score_files(o, r)?;
+        let name = o.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        if json {
+            lines.push(json_scores(&name, &s));
+        } else {
+            lines.push(format!(
+                "{:<28} PSNR {:7.3} dB  SSIM {:.4}  relMSE {:.5}  SMAPE {:.5}  RMSE {:.5}",
+                name, s.psnr, s.ssim, s.relmse, s.smape, s.rmse
+            ));
+        }
+        all.push(s);
+    }
+    let mean = mean_scores(&all);
+    if json {
+        println!("{{\"files\":[{}],\"mean\":{}}}", lines.join(","), json_scores("mean", &mean));
+    } else {
+        for l in lines {
+            println!("{l}");
+        }
+        if all.len() > 1 {
+            println!(
+                "{:<28} PSNR {:7.3} dB  SSIM {:.4}  relMSE {:.5}  SMAPE {:.5}  RMSE {:.5}",
+                "mean", mean.psnr, mean.ssim, mean.relmse, mean.smape, mean.rmse
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Where the bundled sample is: `./samples`, or the repository's.
+pub fn sample_dir() -> Result<PathBuf> {
+    let candidates = [PathBuf::from("samples"), Path::new(env!("CARGO_MANIFEST_DIR")).join("../samples")];
+    candidates
+        .iter()
+        .find(|d| d.join("frame_0000.exr").is_file())
+        .cloned()
+        .ok_or_else(|| HostError::read(Path::new("samples"), "bundled sample not found (run from the repository root)"))
+}
+
+/// The main job: every method on the bundled sample, a table, outputs and PNGs.
+pub fn demo(settings: &Settings) -> Result<()> {
+    let dir = sample_dir()?;
+    let out_root = PathBuf::from("mcdenoise-out");
+    let files = list_inputs(&[dir.clone()])?;
+    let first = Frame::load(&files[0], &Limits::default())?;
+    println!(
+        "bundled sample: {} frames of {}x{} from {} ({} threads, {}, {})",
+        files.len(),
+        first.width,
+        first.height,
+        dir.display(),
+        settings.threads,
+        settings.precision.name(),
+        settings.isa.name()
+    );
+    println!("{:<14} {:>10} {:>10} {:>10} {:>8}", "method", "ms/frame", "PSNR dB", "relMSE", "SSIM");
+    for m in MethodKind::ALL {
+        let outdir = out_root.join(m.name());
+        let mut scores = Vec::new();
+        let mut err = None;
+        let rep = denoise_sequence(m, settings, &[dir.clone()], &outdir, false, true, |i, out, f| {
+            let r = dir.join("ref").join(files[i].file_name().expect("file"));
+            match load_color(&r) {
+                Ok(rf) if (rf.width, rf.height) == (f.width, f.height) => scores.push(metrics::score(
+                    out,
+                    rf.get(crate::frame::Buffer::Color).expect("colour"),
+                    f.width,
+                    f.height,
+                )),
+                Ok(_) => err = Some(HostError::bad(&r, "reference size differs from the frame")),
+                Err(e) => err = Some(e),
+            }
+        });
+        let rep = match rep {
+            Ok(r) => r,
+            Err(e) => {
+                println!("{:<14} skipped: {e}", m.name());
+                continue;
+            }
+        };
+        if let Some(e) = err {
+            return Err(e);
+        }
+        let s = mean_scores(&scores);
+        println!(
+            "{:<14} {:>10.3} {:>10.3} {:>10.5} {:>8.4}",
+            m.name(),
+            ms(rep.timings.total()) / rep.frames.max(1) as f64,
+            s.psnr,
+            s.relmse,
+            s.ssim
+        );
+    }
+    println!("outputs and PNG previews: {}/<method>/", out_root.display());
+    Ok(())
+}
