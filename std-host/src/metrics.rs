@@ -84,11 +84,12 @@ pub fn ssim(x: &[f32], r: &[f32], w: usize, h: usize) -> f64 {
         ];
         let blurred: Vec<Vec<f64>> = fields.iter().map(|f| blur(f, w, h, &g, RADIUS)).collect();
         let mut s = 0.0;
+        let [m_a, m_b, m_aa, m_bb, m_ab] = &blurred[..] else { unreachable!() };
         for p in 0..plane {
-            let (ma, mb) = (blurred[0][p], blurred[1][p]);
-            let va = (blurred[2][p] - ma * ma).max(0.0);
-            let vb = (blurred[3][p] - mb * mb).max(0.0);
-            let cov = blurred[4][p] - ma * mb;
+            let (ma, mb) = (m_a[p], m_b[p]);
+            let va = (m_aa[p] - ma * ma).max(0.0);
+            let vb = (m_bb[p] - mb * mb).max(0.0);
+            let cov = m_ab[p] - ma * mb;
             s += ((2.0 * ma * mb + c1) * (2.0 * cov + c2)) / ((ma * ma + mb * mb + c1) * (va + vb + c2));
         }
         total += s / plane as f64;

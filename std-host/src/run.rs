@@ -284,7 +284,7 @@ pub fn sample_dir() -> Result<PathBuf> {
 pub fn demo(settings: &Settings) -> Result<()> {
     let dir = sample_dir()?;
     let out_root = PathBuf::from("mcdenoise-out");
-    let files = list_inputs(&[dir.clone()])?;
+    let files = list_inputs(std::slice::from_ref(&dir))?;
     let first = Frame::load(&files[0], &Limits::default())?;
     println!(
         "bundled sample: {} frames of {}x{} from {} ({} threads, {}, {})",
@@ -301,7 +301,7 @@ pub fn demo(settings: &Settings) -> Result<()> {
         let outdir = out_root.join(m.name());
         let mut scores = Vec::new();
         let mut err = None;
-        let rep = denoise_sequence(m, settings, &[dir.clone()], &outdir, false, true, |i, out, f| {
+        let rep = denoise_sequence(m, settings, std::slice::from_ref(&dir), &outdir, false, true, |i, out, f| {
             let r = dir.join("ref").join(files[i].file_name().expect("file"));
             match load_color(&r) {
                 Ok(rf) if (rf.width, rf.height) == (f.width, f.height) => scores.push(metrics::score(

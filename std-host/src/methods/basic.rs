@@ -67,6 +67,10 @@ pub fn scene_scale(f: &Frame) -> f32 {
 /// Fraction of the scene scale a reprojected tap's world position may differ by.
 pub const POSITION_TOLERANCE: f32 = 0.02;
 
+/// The accumulated colour and the history counts of a step.
+pub type StepOut<'a, P> =
+    (&'a Planes<<P as mcdenoise_core::Precision>::Store>, &'a Planes<<P as mcdenoise_core::Precision>::Store>);
+
 /// Temporal accumulation state (also a stage inside other methods).
 pub struct TemporalAccumulation<P: HostPrecision> {
     plan: Plan,
@@ -115,12 +119,7 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
     }
 
     /// Accumulates one frame; returns the accumulated colour and the history counts.
-    pub fn step(
-        &mut self,
-        f: &Frame,
-        ctx: &mut Ctx,
-        t: &mut Timings,
-    ) -> Result<(&Planes<P::Store>, &Planes<P::Store>)> {
+    pub fn step(&mut self, f: &Frame, ctx: &mut Ctx, t: &mut Timings) -> Result<StepOut<'_, P>> {
         let (w, h) = (f.width, f.height);
         let enc = |b: Buffer| f.get(b).map(|d| Planes::<P::Store>::encode::<P>(b.channels(), w, h, d));
         let color = t.time("encode", || enc(Buffer::Color)).ok_or_else(|| HostError::bad(&f.path, "no colour"))?;
