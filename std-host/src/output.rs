@@ -33,17 +33,28 @@ pub fn write_rgb_exr(path: &Path, width: usize, height: usize, rgb: &[f32], half
     if rgb.len() != 3 * plane {
         return Err(HostError::write(path, "internal: colour is not three planes"));
     }
-    let chan = |name: &str, c: usize| {
-        let v = &rgb[c * plane..(c + 1) * plane];
+    let ch = |c: usize| &rgb[c * plane..(c + 1) * plane];
+    write_exr(path, width, height, &[("R", ch(0)), ("G", ch(1)), ("B", ch(2))], half)
+}
+
+/// Writes named planes (each `width * height` values) as one scanline EXR
+/// layer, ZIP-compressed, f16 when `half`.
+pub fn write_exr(path: &Path, width: usize, height: usize, planes: &[(&str, &[f32])], half: bool) -> Result<()> {
+    let plane = width * height;
+    let mut list = smallvec::SmallVec::new();
+    for (name, v) in planes {
+        if v.len() != plane {
+            return Err(HostError::write(path, format!("internal: channel {name} is not one plane")));
+        }
         let samples = if half {
             FlatSamples::F16(v.iter().map(|&x| f16::from_f32(x)).collect())
         } else {
             FlatSamples::F32(v.to_vec())
         };
-        AnyChannel::new(name, samples)
-    };
-    let channels = AnyChannels::sort(smallvec::smallvec![chan("R", 0), chan("G", 1), chan("B", 2)]);
-    let layer = Layer::new((width, height), LayerAttributes::default(), Encoding::SMALL_LOSSLESS, channels);
+        list.push(AnyChannel::new(*name, samples));
+    }
+    let layer =
+        Layer::new((width, height), LayerAttributes::default(), Encoding::SMALL_LOSSLESS, AnyChannels::sort(list));
     let image = Image::from_layer(layer);
     atomic_write(path, |tmp| image.write().to_file(tmp).map_err(|e| e.to_string()))
 }

@@ -1,0 +1,189 @@
+//! The `mcdenoise` binary on bad input: one clear line naming the file,
+//! channel or parameter, a non-zero exit, no panic, nothing the user gave
+//! overwritten.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use mcdenoise::output::write_exr;
+
+fn bin() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_mcdenoise"));
+    c.env("RUST_BACKTRACE", "1");
+    c
+}
+
+fn fixtures() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures")
+}
+
+fn run(args: &[&str]) -> Output {
+    bin().args(args).output().expect("the binary runs")
+}
+
+/// Asserts a failed run: exit code, one line on stderr naming `needle`, no panic text.
+#[track_caller]
+fn assert_fails(out: &Output, code: i32, needle: &str) {
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(code), "stderr: {err}");
+    assert!(err.contains(needle), "stderr should name '{needle}': {err}");
+    assert!(!err.contains("panicked") && !err.contains("backtrace") && !err.contains("internal error"), "{err}");
+    let lines = err.lines().filter(|l| !l.starts_with("(see")).count();
+    assert_eq!(lines, 1, "one line expected: {err}");
+}
+
+fn rgb_frame(dir: &Path, name: &str, w: usize, h: usize) -> PathBuf {
+    let p = dir.join(name);
+    let v = vec![0.5f32; w * h];
+    write_exr(&p, w, h, &[("R", &v), ("G", &v), ("B", &v)], false).unwrap();
+    p
+}
+
+fn digest(p: &Path) -> Vec<u8> {
+    std::fs::read(p).unwrap()
+}
+
+#[test]
+fn missing_file() {
+    let t = tempfile::tempdir().unwrap();
+    let out = run(&["denoise", "--method", "none", "/nonexistent/frame.exr", "-o", t.path().to_str().unwrap()]);
+    assert_fails(&out, 1, "/nonexistent/frame.exr");
+}
+
+#[test]
+fn not_an_exr() {
+    let t = tempfile::tempdir().unwrap();
+    let p = t.path().join("notes.exr");
+    std::fs::write(&p, b"this is not an image").unwrap();
+    let out = run(&["denoise", "--method", "none", p.to_str().unwrap(), "-o", t.path().join("o").to_str().unwrap()]);
+    assert_fails(&out, 1, "not a readable OpenEXR file");
+    assert_fails(&out, 1, "notes.exr");
+}
+
+#[test]
+fn truncated_exr() {
+    let t = tempfile::tempdir().unwrap();
+    let src = std::fs::read(fixtures().join("seq_small/frame_0000.exr")).unwrap();
+    for cut in [10, 400, src.len() / 2, src.len() - 7] {
+        let p = t.path().join(format!("cut{cut}.exr"));
+        std::fs::write(&p, &src[..cut]).unwrap();
+        let out =
+            run(&["denoise", "--method", "none", p.to_str().unwrap(), "-o", t.path().join("o").to_str().unwrap()]);
+        assert_fails(&out, 1, &format!("cut{cut}.exr"));
+    }
+}
+
+#[test]
+fn missing_required_channel() {
+    let t = tempfile::tempdir().unwrap();
+    let p = t.path().join("albedo_only.exr");
+    let v = vec![0.5f32; 16];
+    write_exr(&p, 4, 4, &[("albedo.R", &v), ("albedo.G", &v), ("albedo.B", &v)], false).unwrap();
+    let out = run(&["denoise", "--method", "none", p.to_str().unwrap(), "-o", t.path().join("o").to_str().unwrap()]);
+    assert_fails(&out, 1, "missing colour channels (R,G,B)");
+    // ta needs motion or position.
+    let q = rgb_frame(t.path(), "rgb_only.exr", 4, 4);
+    let out = run(&["denoise", "--method", "ta", q.to_str().unwrap(), "-o", t.path().join("o2").to_str().unwrap()]);
+    assert_fails(&out, 1, "motion");
+}
+
+#[test]
+fn incomplete_channel_set() {
+    let t = tempfile::tempdir().unwrap();
+    let p = t.path().join("half_normal.exr");
+    let v = vec![0.5f32; 16];
+    write_exr(&p, 4, 4, &[("R", &v), ("G", &v), ("B", &v), ("normal.X", &v), ("normal.Y", &v)], false).unwrap();
+    let out = run(&["denoise", "--method", "none", p.to_str().unwrap(), "-o", t.path().join("o").to_str().unwrap()]);
+    assert_fails(&out, 1, "normal channels are incomplete: has normal.X,normal.Y but not normal.Z");
+}
+
+#[test]
+fn frames_of_different_sizes() {
+    let t = tempfile::tempdir().unwrap();
+    let a = rgb_frame(t.path(), "a.exr", 8, 8);
+    let b = rgb_frame(t.path(), "b.exr", 8, 9);
+    let out = run(&[
+        "denoise",
+        "--method",
+        "none",
+        a.to_str().unwrap(),
+        b.to_str().unwrap(),
+        "-o",
+        t.path().join("o").to_str().unwrap(),
+    ]);
+    assert_fails(&out, 1, "b.exr: frame is 8x9 but");
+}
+
+#[test]
+fn over_the_size_limit_is_refused_from_the_header() {
+    let t = tempfile::tempdir().unwrap();
+    let p = rgb_frame(t.path(), "wide.exr", 20_000, 1);
+    let out = run(&["denoise", "--method", "none", p.to_str().unwrap(), "-o", t.path().join("o").to_str().unwrap()]);
+    assert_fails(&out, 1, "over the limit");
+}
+
+#[test]
+fn unwritable_output() {
+    let t = tempfile::tempdir().unwrap();
+    let p = rgb_frame(t.path(), "a.exr", 4, 4);
+    let file = t.path().join("plainfile");
+    std::fs::write(&file, b"x").unwrap();
+    let out = run(&["denoise", "--method", "none", p.to_str().unwrap(), "-o", file.to_str().unwrap()]);
+    assert_fails(&out, 1, "not a directory");
+    let out = run(&["denoise", "--method", "none", p.to_str().unwrap(), "-o", "/proc/version/out"]);
+    assert_fails(&out, 1, "/proc/version/out");
+}
+
+#[test]
+fn output_onto_input_is_refused_and_input_kept() {
+    let t = tempfile::tempdir().unwrap();
+    let p = rgb_frame(t.path(), "a.exr", 4, 4);
+    let before = digest(&p);
+    let out = run(&["denoise", "--method", "none", p.to_str().unwrap(), "-o", t.path().to_str().unwrap()]);
+    assert_fails(&out, 1, "would overwrite an input");
+    assert_eq!(before, digest(&p));
+    // Through another spelling of the same directory.
+    let out =
+        run(&["denoise", "--method", "none", t.path().to_str().unwrap(), "-o", &format!("{}/./", t.path().display())]);
+    assert_fails(&out, 1, "would overwrite an input");
+    assert_eq!(before, digest(&p));
+    let leftovers: Vec<_> =
+        std::fs::read_dir(t.path()).unwrap().filter_map(|e| e.ok()).map(|e| e.file_name()).collect();
+    assert_eq!(leftovers.len(), 1, "nothing else written: {leftovers:?}");
+}
+
+#[test]
+fn bad_arguments_name_the_parameter() {
+    let out = run(&["denoise", "--method", "none", "--threads", "abc", "x.exr", "-o", "o"]);
+    assert_fails(&out, 2, "--threads: expected a whole number from 1 to 256, got 'abc'");
+    let out = run(&["denoise", "--method", "nope", "x.exr", "-o", "o"]);
+    assert_fails(&out, 2, "--method: expected one of");
+    let out = run(&["denoise", "--method", "none", "--precision", "f8", "x.exr", "-o", "o"]);
+    assert_fails(&out, 2, "--precision");
+    let out = run(&["denoise", "--method", "none", "x.exr"]);
+    assert_fails(&out, 2, "-o OUTDIR is required");
+    let out = run(&["frobnicate"]);
+    assert_fails(&out, 2, "unknown command 'frobnicate'");
+    let out = run(&["denoise", "--method", "none", "--threads", "99999999999999999999999", "x.exr", "-o", "o"]);
+    assert_fails(&out, 2, "--threads");
+}
+
+#[test]
+fn denoise_and_score_a_sequence() {
+    let t = tempfile::tempdir().unwrap();
+    let seq = fixtures().join("seq_small");
+    let o = t.path().join("ta");
+    let out =
+        run(&["denoise", "--method", "ta", "--png", "--timings", seq.to_str().unwrap(), "-o", o.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    for i in 0..4 {
+        assert!(o.join(format!("frame_{i:04}.exr")).is_file());
+        assert!(o.join(format!("frame_{i:04}.png")).is_file());
+    }
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("temporal accumulation"), "{stdout}");
+    let out = run(&["score", "--reference", seq.join("ref").to_str().unwrap(), o.to_str().unwrap(), "--json"]);
+    assert!(out.status.success());
+    let s = String::from_utf8_lossy(&out.stdout);
+    assert!(s.starts_with("{\"files\":[") && s.contains("\"mean\":"), "{s}");
+}
