@@ -5,7 +5,7 @@
 
 use core::arch::x86_64::*;
 
-use super::scalar::{self, box_sum_scalar, ScalarOps};
+use super::scalar::{self, box_at, ScalarOps};
 use super::Ops;
 use crate::math::avx2::exp;
 use crate::precision::FloatElement;
@@ -49,37 +49,6 @@ fn row_max<S: FloatElement>(row: &[S]) -> f32 {
     m
 }
 
-#[target_feature(enable = "avx2,fma,f16c")]
-fn exp_shifted<S: FloatElement>(l: &[S], shift: f32, e: &mut [f32]) {
-    let n = e.len().min(l.len());
-    let sh = _mm256_set1_ps(shift);
-    let mut x = 0;
-    while x + 8 <= n {
-        // SAFETY: x + 8 <= n for both slices.
-        unsafe {
-            let v = clamp8(load8(l.as_ptr().add(x)));
-            _mm256_storeu_ps(e.as_mut_ptr().add(x), exp(_mm256_sub_ps(v, sh)));
-        }
-        x += 8;
-    }
-    ScalarOps.exp_shifted(&l[x..n], shift, &mut e[x..n]);
-}
-
-#[target_feature(enable = "avx2,fma,f16c")]
-fn mul<S: FloatElement>(e: &[f32], r: &[S], out: &mut [f32]) {
-    let n = out.len().min(e.len()).min(r.len());
-    let mut x = 0;
-    while x + 8 <= n {
-        // SAFETY: x + 8 <= n for all three slices.
-        unsafe {
-            let v = _mm256_mul_ps(_mm256_loadu_ps(e.as_ptr().add(x)), load8(r.as_ptr().add(x)));
-            _mm256_storeu_ps(out.as_mut_ptr().add(x), v);
-        }
-        x += 8;
-    }
-    ScalarOps.mul(&e[x..n], &r[x..n], &mut out[x..n]);
-}
-
 /// `out[x] = a[x + oa] + b[x + ob]` for `x < n`.
 #[inline]
 #[target_feature(enable = "avx2,fma")]
@@ -96,58 +65,6 @@ fn add_off(a: &[f32], oa: usize, b: &[f32], ob: usize, out: &mut [f32], n: usize
     }
     for i in x..n {
         out[i] = a[oa + i] + b[ob + i];
-    }
-}
-
-/// `out[x] += a[x + oa]` for `x < n`.
-#[inline]
-#[target_feature(enable = "avx2,fma")]
-fn acc_off(out: &mut [f32], a: &[f32], oa: usize, n: usize) {
-    assert!(a.len() >= oa + n && out.len() >= n);
-    let mut x = 0;
-    while x + 8 <= n {
-        // SAFETY: bounds asserted above.
-        unsafe {
-            let p = out.as_mut_ptr().add(x);
-            _mm256_storeu_ps(p, _mm256_add_ps(_mm256_loadu_ps(p), _mm256_loadu_ps(a.as_ptr().add(oa + x))));
-        }
-        x += 8;
-    }
-    for i in x..n {
-        out[i] += a[oa + i];
-    }
-}
-
-/// Same pieces, same order as [`box_sum_scalar`].
-#[target_feature(enable = "avx2,fma")]
-fn box_sum(v: &[f32], k: usize, out: &mut [f32], lv: &mut [f32]) {
-    let n = out.len();
-    if k == 1 || v.len() < 8 {
-        return box_sum_scalar(v, k, out, lv);
-    }
-    let len = v.len();
-    let (s2, rest) = lv.split_at_mut(len);
-    let (s4, s8) = rest.split_at_mut(len);
-    add_off(v, 0, v, 1, s2, len - 1);
-    if k >= 4 {
-        add_off(s2, 0, s2, 2, s4, len - 3);
-    }
-    if k >= 8 {
-        add_off(s4, 0, s4, 4, s8, len - 7);
-    }
-    let mut off = 0;
-    let mut first = true;
-    for (bit, level) in [(8usize, &*s8), (4, &*s4), (2, &*s2), (1, v)] {
-        if k & bit == 0 {
-            continue;
-        }
-        if first {
-            out.copy_from_slice(&level[off..off + n]);
-            first = false;
-        } else {
-            acc_off(out, level, off, n);
-        }
-        off += bit;
     }
 }
 
@@ -195,72 +112,6 @@ fn alphas<S: FloatElement>(f: &View<'_, S>, y: usize, x0: usize, n: usize, out: 
     }
 }
 
-#[target_feature(enable = "avx2,fma")]
-#[allow(clippy::too_many_arguments)]
-fn accumulate(
-    s: &[f32],
-    p: Option<&[f32]>,
-    plane: usize,
-    channels: usize,
-    alpha: &[f32],
-    acc: &mut [f32],
-    acc_plane: usize,
-) -> bool {
-    let n = alpha.len();
-    assert!(s.len() >= channels * plane + n && acc.len() >= (channels - 1) * acc_plane + n);
-    if let Some(p) = p {
-        assert!(p.len() >= channels * plane + n);
-    }
-    let tiny = _mm256_set1_ps(TINY_DENOMINATOR);
-    let mut all = 0xff;
-    let mut x = 0;
-    while x + 8 <= n {
-        // SAFETY: bounds asserted above.
-        unsafe {
-            let ld = |buf: &[f32], at: usize| _mm256_loadu_ps(buf.as_ptr().add(at));
-            let mut den = ld(s, x);
-            if let Some(p) = p {
-                den = _mm256_add_ps(den, ld(p, x));
-            }
-            let ok = _mm256_cmp_ps::<_CMP_GE_OQ>(den, tiny);
-            all &= _mm256_movemask_ps(ok);
-            let inv = _mm256_div_ps(ld(alpha, x), den);
-            for c in 0..channels {
-                let at = (1 + c) * plane + x;
-                let mut num = ld(s, at);
-                if let Some(p) = p {
-                    num = _mm256_add_ps(num, ld(p, at));
-                }
-                let add = _mm256_and_ps(_mm256_mul_ps(num, inv), ok);
-                let dp = acc.as_mut_ptr().add(c * acc_plane + x);
-                _mm256_storeu_ps(dp, _mm256_add_ps(_mm256_loadu_ps(dp), add));
-            }
-        }
-        x += 8;
-    }
-    let mut any_tiny = all != 0xff;
-    for x in x..n {
-        let den = match p {
-            Some(p) => s[x] + p[x],
-            None => s[x],
-        };
-        if den >= TINY_DENOMINATOR {
-            let inv = alpha[x] / den;
-            for c in 0..channels {
-                let at = (1 + c) * plane + x;
-                let num = match p {
-                    Some(p) => s[at] + p[at],
-                    None => s[at],
-                };
-                acc[c * acc_plane + x] += num * inv;
-            }
-        } else {
-            any_tiny = true;
-        }
-    }
-    any_tiny
-}
-
 #[target_feature(enable = "avx2,fma,f16c")]
 fn finish<S: FloatElement>(acc: &[f32], albedo: Option<&[S]>, out: &mut [S]) {
     let n = out.len().min(acc.len());
@@ -282,53 +133,271 @@ fn finish<S: FloatElement>(acc: &[f32], albedo: Option<&[S]>, out: &mut [S]) {
     ScalarOps.finish(&acc[x..n], albedo.map(|a| &a[x..n]), &mut out[x..n]);
 }
 
+#[target_feature(enable = "avx2,fma,f16c")]
+#[allow(clippy::too_many_arguments)]
+fn forward_row<S: FloatElement>(
+    l: Option<&[S]>,
+    rad: &[&[S]],
+    shift: f32,
+    u0: usize,
+    u1: usize,
+    a: &mut [f32],
+    p_prev: Option<&[f32]>,
+    p: &mut [f32],
+) {
+    let np = 1 + rad.len();
+    let len = a.len() / np;
+    assert!(np <= 1 + MAX_CHANNELS && a.len() == np * len && p.len() >= np * len && u0 <= u1 && u1 <= len);
+    if let Some(pp) = p_prev {
+        assert!(pp.len() >= np * len);
+    }
+    let n = u1 - u0;
+    if let Some(l) = l {
+        assert!(l.len() >= n && rad.iter().all(|r| r.len() >= n));
+    }
+    // Columns outside the image (and whole rows outside it): weight 0.
+    let zero_col = |a: &mut [f32], p: &mut [f32], u: usize| {
+        for q in 0..np {
+            let i = q * len + u;
+            a[i] = 0.0;
+            p[i] = match p_prev {
+                Some(pp) => 0.0 + pp[i],
+                None => 0.0,
+            };
+        }
+    };
+    let Some(l) = l else {
+        for u in 0..len {
+            zero_col(a, p, u);
+        }
+        return;
+    };
+    for u in (0..u0).chain(u1..len) {
+        zero_col(a, p, u);
+    }
+    let sh = _mm256_set1_ps(shift);
+    let ap = a.as_mut_ptr();
+    let pq = p.as_mut_ptr();
+    let mut u = u0;
+    while u + 8 <= u1 {
+        // SAFETY: u - u0 + 8 <= n for l and rad; q * len + u + 8 <= np * len for a, p, p_prev.
+        unsafe {
+            let e = exp(_mm256_sub_ps(clamp8(load8(l.as_ptr().add(u - u0))), sh));
+            let put = |q: usize, val: __m256| {
+                let i = q * len + u;
+                _mm256_storeu_ps(ap.add(i), val);
+                let pv = match p_prev {
+                    Some(pp) => _mm256_add_ps(val, _mm256_loadu_ps(pp.as_ptr().add(i))),
+                    None => val,
+                };
+                _mm256_storeu_ps(pq.add(i), pv);
+            };
+            put(0, e);
+            for (c, r) in rad.iter().enumerate() {
+                put(1 + c, _mm256_mul_ps(e, load8(r.as_ptr().add(u - u0))));
+            }
+        }
+        u += 8;
+    }
+    // Tail: the scalar formula.
+    for u in u..u1 {
+        let e = crate::math::scalar::exp(crate::softmax::clamp_logit(l[u - u0].to_f32()) - shift);
+        for q in 0..np {
+            let val = if q == 0 { e } else { e * rad[q - 1][u - u0].to_f32() };
+            let i = q * len + u;
+            a[i] = val;
+            p[i] = match p_prev {
+                Some(pp) => val + pp[i],
+                None => val,
+            };
+        }
+    }
+}
+
+#[target_feature(enable = "avx2,fma")]
+fn backward_row(a: &mut [f32], a_next: Option<&[f32]>, p_win: Option<&[f32]>, mut v: Option<&mut [f32]>) {
+    let n = a.len();
+    assert!(a_next.is_none_or(|x| x.len() >= n) && p_win.is_none_or(|x| x.len() >= n));
+    assert!(v.as_ref().is_none_or(|x| x.len() >= n));
+    let mut i = 0;
+    while i + 8 <= n {
+        // SAFETY: i + 8 <= n for every slice (asserted).
+        unsafe {
+            let mut s = _mm256_loadu_ps(a.as_ptr().add(i));
+            if let Some(nx) = a_next {
+                s = _mm256_add_ps(s, _mm256_loadu_ps(nx.as_ptr().add(i)));
+            }
+            _mm256_storeu_ps(a.as_mut_ptr().add(i), s);
+            if let Some(v) = v.as_deref_mut() {
+                let w = match p_win {
+                    Some(p) => _mm256_add_ps(s, _mm256_loadu_ps(p.as_ptr().add(i))),
+                    None => s,
+                };
+                _mm256_storeu_ps(v.as_mut_ptr().add(i), w);
+            }
+        }
+        i += 8;
+    }
+    for i in i..n {
+        let s = match a_next {
+            Some(nx) => a[i] + nx[i],
+            None => a[i],
+        };
+        a[i] = s;
+        if let Some(v) = v.as_deref_mut() {
+            v[i] = match p_win {
+                Some(p) => s + p[i],
+                None => s,
+            };
+        }
+    }
+}
+
+/// Eight window sums at `x` from the levels, same pieces and order as [`box_at`].
+///
+/// # Safety
+/// `x + k` values of `v` and the needed levels must be readable.
+#[inline]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn box8(v: *const f32, lv: *const f32, len: usize, k: usize, x: usize) -> __m256 {
+    let mut acc: Option<__m256> = None;
+    let mut off = 0;
+    for (bit, base) in [(8usize, 2 * len), (4, len), (2, 0)] {
+        if k & bit != 0 {
+            // SAFETY: the level is defined at x + off .. x + off + 8 (caller).
+            let t = unsafe { _mm256_loadu_ps(lv.add(base + x + off)) };
+            acc = Some(acc.map_or(t, |a| _mm256_add_ps(a, t)));
+            off += bit;
+        }
+    }
+    // SAFETY: as above.
+    let t = unsafe { _mm256_loadu_ps(v.add(x + off)) };
+    acc.map_or(t, |a| _mm256_add_ps(a, t))
+}
+
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+fn horizontal_accumulate(
+    v: &[f32],
+    np: usize,
+    k: usize,
+    alpha: &[f32],
+    acc: &mut [f32],
+    acc_plane: usize,
+    den: &mut [f32],
+    lv: &mut [f32],
+) -> bool {
+    let len = v.len() / np;
+    let tw = alpha.len();
+    assert!(tw + k - 1 <= len && den.len() >= tw && lv.len() >= 3 * np * len);
+    assert!(np >= 2 && acc.len() >= (np - 2) * acc_plane + tw);
+    // The levels, plane by plane (same additions as box_levels).
+    for q in 0..np {
+        let vq = &v[q * len..(q + 1) * len];
+        let (s2, rest) = lv[3 * q * len..3 * (q + 1) * len].split_at_mut(len);
+        let (s4, s8) = rest.split_at_mut(len);
+        if k >= 2 {
+            add_off(vq, 0, vq, 1, s2, len - 1);
+        }
+        if k >= 4 {
+            add_off(s2, 0, s2, 2, s4, len - 3);
+        }
+        if k >= 8 {
+            add_off(s4, 0, s4, 4, s8, len - 7);
+        }
+    }
+    let tiny = _mm256_set1_ps(TINY_DENOMINATOR);
+    let mut all = 0xff;
+    let mut x = 0;
+    while x + 8 <= tw {
+        // SAFETY: x + 8 + k - 1 <= len, so every piece of box8 is in its level's
+        // defined range; acc and den hold tw columns per plane (asserted).
+        unsafe {
+            let d = box8(v.as_ptr(), lv.as_ptr(), len, k, x);
+            _mm256_storeu_ps(den.as_mut_ptr().add(x), d);
+            let ok = _mm256_cmp_ps::<_CMP_GE_OQ>(d, tiny);
+            all &= _mm256_movemask_ps(ok);
+            let inv = _mm256_div_ps(_mm256_loadu_ps(alpha.as_ptr().add(x)), d);
+            for q in 1..np {
+                let num = box8(v.as_ptr().add(q * len), lv.as_ptr().add(3 * q * len), len, k, x);
+                let add = _mm256_and_ps(_mm256_mul_ps(num, inv), ok);
+                let dp = acc.as_mut_ptr().add((q - 1) * acc_plane + x);
+                _mm256_storeu_ps(dp, _mm256_add_ps(_mm256_loadu_ps(dp), add));
+            }
+        }
+        x += 8;
+    }
+    let mut any_tiny = all != 0xff;
+    for x in x..tw {
+        let d = box_at(&v[..len], &lv[..3 * len], k, x);
+        den[x] = d;
+        if d >= TINY_DENOMINATOR {
+            let inv = alpha[x] / d;
+            for q in 1..np {
+                let num = box_at(&v[q * len..(q + 1) * len], &lv[3 * q * len..3 * (q + 1) * len], k, x);
+                acc[(q - 1) * acc_plane + x] += num * inv;
+            }
+        } else {
+            any_tiny = true;
+        }
+    }
+    any_tiny
+}
+
 impl Ops for Avx2Ops {
     fn row_max<S: FloatElement>(&self, row: &[S]) -> f32 {
         // SAFETY: Avx2Ops exists only when AVX2/FMA/F16C are supported.
         unsafe { row_max(row) }
     }
-    fn exp_shifted<S: FloatElement>(&self, l: &[S], shift: f32, e: &mut [f32]) {
+    fn forward_row<S: FloatElement>(
+        &self,
+        l: Option<&[S]>,
+        rad: &[&[S]],
+        shift: f32,
+        u0: usize,
+        u1: usize,
+        a: &mut [f32],
+        p_prev: Option<&[f32]>,
+        p: &mut [f32],
+    ) {
         // SAFETY: as above.
-        unsafe { exp_shifted(l, shift, e) }
+        unsafe { forward_row(l, rad, shift, u0, u1, a, p_prev, p) }
     }
-    fn mul<S: FloatElement>(&self, e: &[f32], r: &[S], out: &mut [f32]) {
+    fn backward_row(&self, a: &mut [f32], a_next: Option<&[f32]>, p_win: Option<&[f32]>, v: Option<&mut [f32]>) {
         // SAFETY: as above.
-        unsafe { mul(e, r, out) }
+        unsafe { backward_row(a, a_next, p_win, v) }
     }
-    fn box_sum(&self, v: &[f32], k: usize, out: &mut [f32], lv: &mut [f32]) {
+    fn horizontal_accumulate(
+        &self,
+        v: &[f32],
+        np: usize,
+        k: usize,
+        alpha: &[f32],
+        acc: &mut [f32],
+        acc_plane: usize,
+        den: &mut [f32],
+        lv: &mut [f32],
+    ) -> bool {
         // SAFETY: as above.
-        unsafe { box_sum(v, k, out, lv) }
-    }
-    fn add(&self, a: &[f32], b: &[f32], out: &mut [f32]) {
-        let n = out.len();
-        // SAFETY: as above.
-        unsafe { add_off(a, 0, b, 0, out, n) }
-    }
-    fn add_assign(&self, a: &mut [f32], b: &[f32]) {
-        let n = a.len().min(b.len());
-        // SAFETY: as above.
-        unsafe { acc_off(a, b, 0, n) }
+        unsafe { horizontal_accumulate(v, np, k, alpha, acc, acc_plane, den, lv) }
     }
     fn alphas<S: FloatElement>(&self, f: &View<'_, S>, y: usize, x0: usize, n: usize, out: &mut [f32], stride: usize) {
         // SAFETY: as above.
         unsafe { alphas(f, y, x0, n, out, stride) }
     }
-    fn accumulate(
-        &self,
-        s: &[f32],
-        p: Option<&[f32]>,
-        plane: usize,
-        channels: usize,
-        alpha: &[f32],
-        acc: &mut [f32],
-        acc_plane: usize,
-    ) -> bool {
-        // SAFETY: as above.
-        unsafe { accumulate(s, p, plane, channels, alpha, acc, acc_plane) }
-    }
     fn finish<S: FloatElement>(&self, acc: &[f32], albedo: Option<&[S]>, out: &mut [S]) {
         // SAFETY: as above.
         unsafe { finish(acc, albedo, out) }
+    }
+    fn prefetch<S: FloatElement>(&self, row: &[S]) {
+        let bytes = core::mem::size_of_val(row);
+        let p = row.as_ptr() as *const i8;
+        let mut off = 0;
+        while off < bytes {
+            // SAFETY: prefetching never faults; the address is inside `row`.
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(p.add(off)) };
+            off += 64;
+        }
     }
 }
 

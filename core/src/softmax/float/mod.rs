@@ -21,40 +21,54 @@ pub(crate) const TILE_H: usize = 48;
 /// Output columns per tile of the box-sum path.
 pub(crate) const TILE_W: usize = 256;
 
-/// Row loops of the box-sum path.
+/// Row loops of the box-sum path. Rows of the carried block are stored
+/// plane-interleaved: row `t` is `np` consecutive planes of `len` values
+/// (`np = 1 + channels`: the weight sum, then one weighted channel each).
 pub(crate) trait Ops {
     /// Maximum of a row of logits, NaN skipped (`-inf` when empty or all NaN).
     fn row_max<S: FloatElement>(&self, row: &[S]) -> f32;
-    /// `e[i] = exp(clamp(l[i]) - shift)`.
-    fn exp_shifted<S: FloatElement>(&self, l: &[S], shift: f32, e: &mut [f32]);
-    /// `out[i] = e[i] * r[i]`.
-    fn mul<S: FloatElement>(&self, e: &[f32], r: &[S], out: &mut [f32]);
-    /// `out[x] = sum_{t < k} v[x + t]` for `x < out.len()` by power-of-two
-    /// doubling; `lv` holds `3 * v.len()` words.
-    fn box_sum(&self, v: &[f32], k: usize, out: &mut [f32], lv: &mut [f32]);
-    /// `out = a + b`.
-    fn add(&self, a: &[f32], b: &[f32], out: &mut [f32]);
-    /// `a += b`.
-    fn add_assign(&self, a: &mut [f32], b: &[f32]);
-    /// Softmax over the fusion planes at columns `x0 .. x0 + n` of row `y` (for `x < n`):
-    /// `out[i * stride + x] = alpha_i`.
-    fn alphas<S: FloatElement>(&self, f: &View<'_, S>, y: usize, x0: usize, n: usize, out: &mut [f32], stride: usize);
-    /// For every x with `den >= TINY`: `acc_c += num_c * (alpha / den)` where
-    /// `den = s[0] (+ p[0])`, `num_c = s[1 + c] (+ p[1 + c])`; row `p` of
-    /// plane `q` starts at `q * plane`. Returns whether any x had `den < TINY`.
+    /// One carried row: `e = exp(clamp(l) - shift)` and `e * r_c` at columns
+    /// `u0 .. u1` (0 elsewhere, and everywhere when `l` is `None`) into `a`,
+    /// and the block prefix `p = a (+ p_prev)`.
     #[allow(clippy::too_many_arguments)]
-    fn accumulate(
+    fn forward_row<S: FloatElement>(
         &self,
-        s: &[f32],
-        p: Option<&[f32]>,
-        plane: usize,
-        channels: usize,
+        l: Option<&[S]>,
+        rad: &[&[S]],
+        shift: f32,
+        u0: usize,
+        u1: usize,
+        a: &mut [f32],
+        p_prev: Option<&[f32]>,
+        p: &mut [f32],
+    );
+    /// Block suffix in place, `a = a (+ a_next)`, and when `v` is given the
+    /// vertical window sum `v = a (+ p_win)`.
+    fn backward_row(&self, a: &mut [f32], a_next: Option<&[f32]>, p_win: Option<&[f32]>, v: Option<&mut [f32]>);
+    /// Horizontal window sums of the `np` planes of `v` (power-of-two
+    /// doubling, see [`scalar::box_levels`]) for the `tw` output columns, then
+    /// for every column with `den >= TINY`: `acc_c += num_c * (alpha / den)`.
+    /// Writes `den` per column; returns whether any column had `den < TINY`.
+    #[allow(clippy::too_many_arguments)]
+    fn horizontal_accumulate(
+        &self,
+        v: &[f32],
+        np: usize,
+        k: usize,
         alpha: &[f32],
         acc: &mut [f32],
         acc_plane: usize,
+        den: &mut [f32],
+        lv: &mut [f32],
     ) -> bool;
+    /// Softmax over the fusion planes at columns `x0 .. x0 + n` of row `y`:
+    /// `out[i * stride + x] = alpha_i` for `x < n`.
+    fn alphas<S: FloatElement>(&self, f: &View<'_, S>, y: usize, x0: usize, n: usize, out: &mut [f32], stride: usize);
     /// `out = from_f32(acc * albedo)` (albedo optional).
     fn finish<S: FloatElement>(&self, acc: &[f32], albedo: Option<&[S]>, out: &mut [S]);
+    /// Hints that `row` will be read soon (tiles read many short row pieces,
+    /// too short for the hardware prefetchers to ramp up on).
+    fn prefetch<S: FloatElement>(&self, _row: &[S]) {}
 }
 
 /// Scratch words of the box-sum path.
@@ -66,9 +80,9 @@ pub(crate) fn boxsum_scratch_len(sizes: &[usize], channels: usize, width: usize)
     // prefix/suffix blocks start on absolute multiples of k.
     let t = th + 4 * rmax;
     let l = tw + 2 * rmax;
-    let ch = channels;
+    let np = 1 + channels;
     let m = sizes.len();
-    ch * th * tw + m * th * tw + 2 * (1 + ch) * t * tw + (1 + ch) * l + 3 * l
+    channels * th * tw + m * th * tw + 2 * np * t * l + np * l + tw + 3 * np * l
 }
 
 pub(crate) fn fused<S: FloatElement>(
@@ -208,6 +222,11 @@ fn block_start(a: isize, k: usize) -> isize {
 }
 
 /// Output rows `ytop .. ytop + th` (inside grid cell `cell ..`), columns `tx .. tx + tw`.
+///
+/// Vertical first: the weight rows (`e` and `e * r_c`, full carried width)
+/// are summed over windows of `k` rows by prefix/suffix blocks, and only the
+/// `th` window rows that are output are then summed horizontally, straight
+/// into the accumulators.
 #[allow(clippy::too_many_arguments)]
 fn tile<S: FloatElement, O: Ops>(
     o: &O,
@@ -231,14 +250,20 @@ fn tile<S: FloatElement, O: Ops>(
     let lmax = tw + 2 * rmax;
     let (acc, rest) = scratch.split_at_mut(ch * th * tw);
     let (alpha, rest) = rest.split_at_mut(m * th * tw);
-    let (a_buf, rest) = rest.split_at_mut(np * tmax * tw);
-    let (p_buf, rest) = rest.split_at_mut(np * tmax * tw);
-    let (erow, rest) = rest.split_at_mut(np * lmax);
-    let lv = &mut rest[..3 * lmax];
+    let (a_buf, rest) = rest.split_at_mut(np * tmax * lmax);
+    let (p_buf, rest) = rest.split_at_mut(np * tmax * lmax);
+    let (v_buf, rest) = rest.split_at_mut(np * lmax);
+    let (den, rest) = rest.split_at_mut(tw);
+    let lv = &mut rest[..3 * np * lmax];
     acc.fill(0.0);
     match &inp.fusion {
         Some(f) => {
             for t in 0..th {
+                if t + 2 < th {
+                    for q in 0..m {
+                        o.prefetch(&f.row(q, ytop + t + 2)[tx..tx + tw]);
+                    }
+                }
                 o.alphas(f, ytop + t, tx, tw, &mut alpha[t * tw..], th * tw);
             }
         }
@@ -248,10 +273,11 @@ fn tile<S: FloatElement, O: Ops>(
         let r = k / 2;
         let ri = r as isize;
         let l = tw + 2 * r; // columns carried for this size
+        let row = np * l; // words per carried row (all planes)
         let xbase = tx as isize - ri;
         let u0 = (-xbase).max(0) as usize;
         let u1 = ((w as isize - xbase).min(l as isize)) as usize;
-        let xs = (xbase + u0 as isize) as usize; // image column of erow[u0]
+        let xs = (xbase + u0 as isize) as usize; // image column of carried column u0
         let xe = xs + (u1 - u0);
 
         // The shift: the largest (clamped) logit of the whole grid cell and its halo.
@@ -266,79 +292,56 @@ fn tile<S: FloatElement, O: Ops>(
         // Carried rows: from the start of the block holding the first window's
         // top row to the last window's bottom row.
         let ybase = block_start(ytop as isize - ri, k);
-        let tt = (ytop + th + r) as isize - ybase;
-        let tt = tt as usize;
-        let row_at = |q: usize, t: usize| (q * tt + t) * tw;
+        let tt = ((ytop + th + r) as isize - ybase) as usize;
         // Absolute row of carried row t is ybase + t; blocks start where that is 0 mod k.
         let block_pos = |t: usize| (ybase + t as isize).rem_euclid(k as isize) as usize;
+        let mut rads: [&[S]; MAX_CHANNELS] = [&[]; MAX_CHANNELS];
         for t in 0..tt {
             let yy = ybase + t as isize;
-            if yy < 0 || yy as usize >= h {
-                for q in 0..np {
-                    a_buf[row_at(q, t)..row_at(q, t) + tw].fill(0.0);
-                }
-            } else {
-                let yy = yy as usize;
-                let (e, er) = erow[..np * l].split_at_mut(l);
-                e[..u0].fill(0.0);
-                e[u1..].fill(0.0);
-                o.exp_shifted(&imp.row(i, yy)[xs..xe], shift, &mut e[u0..u1]);
+            let ahead = yy + 2;
+            if ahead >= 0 && (ahead as usize) < h {
+                o.prefetch(&imp.row(i, ahead as usize)[xs..xe]);
                 for c in 0..ch {
-                    let out = &mut er[c * l..(c + 1) * l];
-                    out[..u0].fill(0.0);
-                    out[u1..].fill(0.0);
-                    o.mul(&e[u0..u1], &rad.row(c, yy)[xs..xe], &mut out[u0..u1]);
-                }
-                for q in 0..np {
-                    let v = &erow[q * l..(q + 1) * l];
-                    o.box_sum(v, k, &mut a_buf[row_at(q, t)..row_at(q, t) + tw], lv);
+                    o.prefetch(&rad.row(c, ahead as usize)[xs..xe]);
                 }
             }
-            // Prefix within blocks of k rows.
-            for q in 0..np {
-                let at = row_at(q, t);
-                if block_pos(t) == 0 || t == 0 {
-                    p_buf[at..at + tw].copy_from_slice(&a_buf[at..at + tw]);
-                } else {
-                    let (prev, cur) = p_buf.split_at_mut(at);
-                    o.add(&a_buf[at..at + tw], &prev[at - tw..], &mut cur[..tw]);
+            let inside = yy >= 0 && (yy as usize) < h;
+            let lrow = inside.then(|| &imp.row(i, yy as usize)[xs..xe]);
+            if inside {
+                for (c, rr) in rads.iter_mut().enumerate().take(ch) {
+                    *rr = &rad.row(c, yy as usize)[xs..xe];
                 }
             }
+            let a_row = &mut a_buf[t * row..(t + 1) * row];
+            let (p_before, p_rest) = p_buf.split_at_mut(t * row);
+            let p_prev = (t > 0 && block_pos(t) != 0).then(|| &p_before[(t - 1) * row..]);
+            o.forward_row(lrow, &rads[..ch], shift, u0, u1, a_row, p_prev, &mut p_rest[..row]);
         }
         // Suffix within blocks, in place, walking up; emit windows as they complete.
         let first_out = (ytop as isize - ri - ybase) as usize; // carried row of the first window's top
         for t in (0..tt).rev() {
             let block_last = block_pos(t) == k - 1 || t == tt - 1;
-            if !block_last {
-                for q in 0..np {
-                    let at = row_at(q, t);
-                    let (cur, next) = a_buf.split_at_mut(at + tw);
-                    o.add_assign(&mut cur[at..], &next[..tw]);
-                }
+            let emit = t >= first_out && t < first_out + th;
+            // Window rows t ..= t + k - 1: one whole block, or a suffix plus a prefix.
+            let p_win = (emit && block_pos(t) != 0).then(|| &p_buf[(t + k - 1) * row..(t + k) * row]);
+            let (a_cur, a_next) = a_buf.split_at_mut((t + 1) * row);
+            let next = (!block_last).then(|| &a_next[..row]);
+            o.backward_row(&mut a_cur[t * row..], next, p_win, emit.then_some(&mut v_buf[..row]));
+            if !emit {
+                continue;
             }
-            if t >= first_out && t < first_out + th {
-                let ot = t - first_out; // output row within the tile
-                                        // Window rows t ..= t + k - 1: one whole block, or a suffix plus a prefix.
-                let second = (block_pos(t) != 0).then_some(t + k - 1);
-                let s_rows = &a_buf[row_at(0, t)..];
-                let p_rows = second.map(|t2| &p_buf[row_at(0, t2)..]);
-                let arow = &alpha[(i * th + ot) * tw..(i * th + ot + 1) * tw];
-                let acc_row = &mut acc[ot * tw..];
-                let any_tiny = o.accumulate(s_rows, p_rows, tt * tw, ch, arow, acc_row, th * tw);
-                if any_tiny {
-                    for x in 0..tw {
-                        let mut den = a_buf[row_at(0, t) + x];
-                        if let Some(t2) = second {
-                            den += p_buf[row_at(0, t2) + x];
-                        }
-                        if den >= TINY_DENOMINATOR {
-                            continue;
-                        }
-                        let mut rr = [0.0f32; MAX_CHANNELS];
-                        direct_pixel(k, imp, i, rad, ytop + ot, tx + x, &mut rr);
-                        for c in 0..ch {
-                            acc[(c * th + ot) * tw + x] += rr[c] * arow[x];
-                        }
+            let ot = t - first_out; // output row within the tile
+            let arow = &alpha[(i * th + ot) * tw..(i * th + ot + 1) * tw];
+            let any_tiny = o.horizontal_accumulate(&v_buf[..row], np, k, arow, &mut acc[ot * tw..], th * tw, den, lv);
+            if any_tiny {
+                for x in 0..tw {
+                    if den[x] >= TINY_DENOMINATOR {
+                        continue;
+                    }
+                    let mut rr = [0.0f32; MAX_CHANNELS];
+                    direct_pixel(k, imp, i, rad, ytop + ot, tx + x, &mut rr);
+                    for c in 0..ch {
+                        acc[(c * th + ot) * tw + x] += rr[c] * arow[x];
                     }
                 }
             }

@@ -9,19 +9,17 @@ use crate::view::{View, ViewMut};
 /// The scalar [`Ops`].
 pub(crate) struct ScalarOps;
 
-/// Power-of-two doubling box sum shared by the scalar path (and, for the
-/// combining order, mirrored exactly by the SIMD path).
-pub(crate) fn box_sum_scalar(v: &[f32], k: usize, out: &mut [f32], lv: &mut [f32]) {
-    let n = out.len();
-    if k == 1 {
-        out.copy_from_slice(&v[..n]);
-        return;
-    }
+/// The power-of-two levels of one plane `v`: `s2[i] = v[i] + v[i + 1]`,
+/// `s4[i] = s2[i] + s2[i + 2]`, `s8[i] = s4[i] + s4[i + 4]`, each over every
+/// index it is defined at (only the levels `k` needs).
+pub(crate) fn box_levels(v: &[f32], k: usize, lv: &mut [f32]) {
     let len = v.len();
     let (s2, rest) = lv.split_at_mut(len);
     let (s4, s8) = rest.split_at_mut(len);
-    for x in 0..len - 1 {
-        s2[x] = v[x] + v[x + 1];
+    if k >= 2 {
+        for x in 0..len - 1 {
+            s2[x] = v[x] + v[x + 1];
+        }
     }
     if k >= 4 {
         for x in 0..len - 3 {
@@ -33,23 +31,25 @@ pub(crate) fn box_sum_scalar(v: &[f32], k: usize, out: &mut [f32], lv: &mut [f32
             s8[x] = s4[x] + s4[x + 4];
         }
     }
-    // Pieces from the largest power of two down; the first initialises.
+}
+
+/// The window sum `sum_{t < k} v[x + t]` from the levels: the pieces of `k`'s
+/// binary expansion from the largest down, left to right
+/// (`k = 13`: `(s8[x] + s4[x + 8]) + v[x + 12]`).
+#[inline(always)]
+pub(crate) fn box_at(v: &[f32], lv: &[f32], k: usize, x: usize) -> f32 {
+    let len = v.len();
+    let mut acc = None::<f32>;
     let mut off = 0;
-    let mut first = true;
-    for (bit, level) in [(8usize, &*s8), (4, &*s4), (2, &*s2), (1, v)] {
-        if k & bit == 0 {
-            continue;
+    for (bit, base) in [(8usize, 2 * len), (4, len), (2, 0)] {
+        if k & bit != 0 {
+            let t = lv[base + x + off];
+            acc = Some(acc.map_or(t, |a| a + t));
+            off += bit;
         }
-        if first {
-            out.copy_from_slice(&level[off..off + n]);
-            first = false;
-        } else {
-            for (o, &a) in out.iter_mut().zip(&level[off..off + n]) {
-                *o += a;
-            }
-        }
-        off += bit;
     }
+    let t = v[x + off]; // k is odd: the last piece is a single value
+    acc.map_or(t, |a| a + t)
 }
 
 impl Ops for ScalarOps {
@@ -57,32 +57,86 @@ impl Ops for ScalarOps {
         row.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v.to_f32()))
     }
 
-    fn exp_shifted<S: FloatElement>(&self, l: &[S], shift: f32, e: &mut [f32]) {
-        for (o, &v) in e.iter_mut().zip(l) {
-            *o = exp(clamp_logit(v.to_f32()) - shift);
+    fn forward_row<S: FloatElement>(
+        &self,
+        l: Option<&[S]>,
+        rad: &[&[S]],
+        shift: f32,
+        u0: usize,
+        u1: usize,
+        a: &mut [f32],
+        p_prev: Option<&[f32]>,
+        p: &mut [f32],
+    ) {
+        let np = 1 + rad.len();
+        let len = a.len() / np;
+        for u in 0..len {
+            let mut vals = [0.0f32; 1 + MAX_CHANNELS];
+            if let Some(l) = l.filter(|_| u >= u0 && u < u1) {
+                let e = exp(clamp_logit(l[u - u0].to_f32()) - shift);
+                vals[0] = e;
+                for (c, r) in rad.iter().enumerate() {
+                    vals[1 + c] = e * r[u - u0].to_f32();
+                }
+            }
+            for q in 0..np {
+                let i = q * len + u;
+                a[i] = vals[q];
+                p[i] = match p_prev {
+                    Some(pp) => vals[q] + pp[i],
+                    None => vals[q],
+                };
+            }
         }
     }
 
-    fn mul<S: FloatElement>(&self, e: &[f32], r: &[S], out: &mut [f32]) {
-        for ((o, &a), &b) in out.iter_mut().zip(e).zip(r) {
-            *o = a * b.to_f32();
+    fn backward_row(&self, a: &mut [f32], a_next: Option<&[f32]>, p_win: Option<&[f32]>, mut v: Option<&mut [f32]>) {
+        for i in 0..a.len() {
+            let s = match a_next {
+                Some(n) => a[i] + n[i],
+                None => a[i],
+            };
+            a[i] = s;
+            if let Some(v) = v.as_deref_mut() {
+                v[i] = match p_win {
+                    Some(p) => s + p[i],
+                    None => s,
+                };
+            }
         }
     }
 
-    fn box_sum(&self, v: &[f32], k: usize, out: &mut [f32], lv: &mut [f32]) {
-        box_sum_scalar(v, k, out, lv)
-    }
-
-    fn add(&self, a: &[f32], b: &[f32], out: &mut [f32]) {
-        for ((o, &x), &y) in out.iter_mut().zip(a).zip(b) {
-            *o = x + y;
+    fn horizontal_accumulate(
+        &self,
+        v: &[f32],
+        np: usize,
+        k: usize,
+        alpha: &[f32],
+        acc: &mut [f32],
+        acc_plane: usize,
+        den: &mut [f32],
+        lv: &mut [f32],
+    ) -> bool {
+        let len = v.len() / np;
+        let tw = alpha.len();
+        for q in 0..np {
+            box_levels(&v[q * len..(q + 1) * len], k, &mut lv[3 * q * len..3 * (q + 1) * len]);
         }
-    }
-
-    fn add_assign(&self, a: &mut [f32], b: &[f32]) {
-        for (x, &y) in a.iter_mut().zip(b) {
-            *x += y;
+        let mut any_tiny = false;
+        for x in 0..tw {
+            let d = box_at(&v[..len], &lv[..3 * len], k, x);
+            den[x] = d;
+            if d >= TINY_DENOMINATOR {
+                let inv = alpha[x] / d;
+                for q in 1..np {
+                    let num = box_at(&v[q * len..(q + 1) * len], &lv[3 * q * len..3 * (q + 1) * len], k, x);
+                    acc[(q - 1) * acc_plane + x] += num * inv;
+                }
+            } else {
+                any_tiny = true;
+            }
         }
+        any_tiny
     }
 
     fn alphas<S: FloatElement>(&self, f: &View<'_, S>, y: usize, x0: usize, n: usize, out: &mut [f32], stride: usize) {
@@ -94,40 +148,6 @@ impl Ops for ScalarOps {
                 out[i * stride + x] = a[i];
             }
         }
-    }
-
-    fn accumulate(
-        &self,
-        s: &[f32],
-        p: Option<&[f32]>,
-        plane: usize,
-        channels: usize,
-        alpha: &[f32],
-        acc: &mut [f32],
-        acc_plane: usize,
-    ) -> bool {
-        let n = alpha.len();
-        let mut any_tiny = false;
-        for x in 0..n {
-            let den = match p {
-                Some(p) => s[x] + p[x],
-                None => s[x],
-            };
-            if den >= TINY_DENOMINATOR {
-                let inv = alpha[x] / den;
-                for c in 0..channels {
-                    let at = (1 + c) * plane + x;
-                    let num = match p {
-                        Some(p) => s[at] + p[at],
-                        None => s[at],
-                    };
-                    acc[c * acc_plane + x] += num * inv;
-                }
-            } else {
-                any_tiny = true;
-            }
-        }
-        any_tiny
     }
 
     fn finish<S: FloatElement>(&self, acc: &[f32], albedo: Option<&[S]>, out: &mut [S]) {
