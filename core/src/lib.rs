@@ -26,6 +26,7 @@
 // SIMD loops index several parallel arrays by lane or channel.
 #![allow(clippy::needless_range_loop)]
 
+pub mod atrous;
 pub mod conv;
 pub mod error;
 pub mod isa;

@@ -20,10 +20,11 @@ usage:
                                  write outputs and PNGs under ./mcdenoise-out/
   mcdenoise denoise --method M [options] INPUT... -o OUTDIR
                                  INPUT: frame files in order, or a directory (its .exr files by name)
-      --method M                 none | ta
+      --method M                 none | ta | atrous | sure-atrous
       --precision P              f32 (default) | f16 | f16-arith | fixed
       --threads N                worker threads (default: all cores)
       --isa I                    scalar | avx2 | neon (default: the best this CPU has)
+      --phi-color F              a-trous colour edge-stopping, in noise variances (default 64)
       --half                     write f16 EXR (default f32)
       --png                      also write a tone-mapped PNG preview per frame
       --timings                  print per-stage times
@@ -102,6 +103,12 @@ fn parse_settings(flag: &str, value: &str, s: &mut Settings) -> Result<bool> {
     match flag {
         "--precision" => s.precision = PrecisionKind::parse(value)?,
         "--threads" => s.threads = number("--threads", value, 1, 256)?,
+        "--phi-color" => {
+            s.phi_color =
+                Some(value.trim().parse::<f32>().ok().filter(|v| v.is_finite() && *v > 0.0 && *v <= 1e6).ok_or_else(
+                    || usage(format!("--phi-color: expected a positive number up to 1e6, got '{value}'")),
+                )?)
+        }
         "--isa" => {
             s.isa = Isa::from_name(value)
                 .ok_or_else(|| usage(format!("--isa: expected scalar, avx2 or neon; got '{value}'")))?
@@ -143,7 +150,7 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
                     Some("--half") => half = true,
                     Some("--png") => png = true,
                     Some("--timings") => timings = true,
-                    Some(f @ ("--precision" | "--threads" | "--isa")) => {
+                    Some(f @ ("--precision" | "--threads" | "--isa" | "--phi-color")) => {
                         let f = f.to_string();
                         let v = text(&f, it.next())?;
                         parse_settings(&f, &v, &mut settings)?;
@@ -152,7 +159,8 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
                     _ => inputs.push(PathBuf::from(a)),
                 }
             }
-            let method = method.ok_or_else(|| usage("denoise: --method is required (none, ta)"))?;
+            let method =
+                method.ok_or_else(|| usage("denoise: --method is required (none, ta, atrous, sure-atrous)"))?;
             let outdir = outdir.ok_or_else(|| usage("denoise: -o OUTDIR is required"))?;
             if inputs.is_empty() {
                 return Err(usage("denoise: no INPUT given (frame files or a directory)"));

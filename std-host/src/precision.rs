@@ -5,6 +5,7 @@
 //! saturates at ±65504 instead of overflowing to infinity (values above are
 //! clamped, NaN was already replaced by 0 on load).
 
+use mcdenoise_core::atrous::AtrousPrecision;
 use mcdenoise_core::conv::ConvPrecision;
 use mcdenoise_core::pool::PoolPrecision;
 use mcdenoise_core::softmax::SoftmaxPrecision;
@@ -53,7 +54,14 @@ impl PrecisionKind {
 
 /// A precision the host pipelines can run in.
 pub trait HostPrecision:
-    Precision + UnfoldPrecision + SoftmaxPrecision + PoolPrecision + ConvPrecision + TonemapPrecision + TemporalPrecision
+    Precision
+    + UnfoldPrecision
+    + SoftmaxPrecision
+    + PoolPrecision
+    + ConvPrecision
+    + TonemapPrecision
+    + TemporalPrecision
+    + AtrousPrecision
 {
     /// Encodes f32 values into storage (saturating).
     fn encode(src: &[f32], dst: &mut [Self::Store]);

@@ -15,8 +15,10 @@ use crate::frame::Frame;
 use crate::par::{Pool, Scratch};
 use crate::precision::{HostPrecision, PrecisionKind};
 
+mod atrous;
 mod basic;
 
+pub use atrous::Atrous;
 pub use basic::{scene_scale, Passthrough, TemporalAccumulation};
 
 /// The methods, by command-line name.
@@ -26,17 +28,23 @@ pub enum MethodKind {
     None,
     /// Temporal accumulation only (the baseline every learned method is compared with).
     Ta,
+    /// Edge-avoiding à-trous wavelet filter, 5 levels.
+    Atrous,
+    /// À-trous with per-pixel SURE shrinkage of the detail coefficients.
+    SureAtrous,
 }
 
 impl MethodKind {
     /// Every method.
-    pub const ALL: [MethodKind; 2] = [MethodKind::None, MethodKind::Ta];
+    pub const ALL: [MethodKind; 4] = [MethodKind::None, MethodKind::Ta, MethodKind::Atrous, MethodKind::SureAtrous];
 
     /// The command-line name.
     pub fn name(self) -> &'static str {
         match self {
             MethodKind::None => "none",
             MethodKind::Ta => "ta",
+            MethodKind::Atrous => "atrous",
+            MethodKind::SureAtrous => "sure-atrous",
         }
     }
 
@@ -111,11 +119,13 @@ pub struct Settings {
     pub threads: usize,
     /// Storage/arithmetic precision.
     pub precision: PrecisionKind,
+    /// À-trous colour edge-stopping multiple (`None`: the default, 64).
+    pub phi_color: Option<f32>,
 }
 
 impl Default for Settings {
     fn default() -> Self {
-        Settings { isa: Isa::detect(), threads: 1, precision: PrecisionKind::F32 }
+        Settings { isa: Isa::detect(), threads: 1, precision: PrecisionKind::F32, phi_color: None }
     }
 }
 
@@ -142,8 +152,8 @@ pub trait Denoiser {
 /// Builds the denoiser for `kind` from the sequence's first frame.
 pub fn create(kind: MethodKind, settings: &Settings, first: &Frame) -> Result<Box<dyn Denoiser>> {
     match settings.precision {
-        PrecisionKind::F32 => create_in::<mcdenoise_core::F32>(kind, first),
-        PrecisionKind::F16 => create_in::<mcdenoise_core::F16>(kind, first),
+        PrecisionKind::F32 => create_in::<mcdenoise_core::F32>(kind, settings, first),
+        PrecisionKind::F16 => create_in::<mcdenoise_core::F16>(kind, settings, first),
         other => Err(HostError::Usage(format!(
             "--precision {}: not available yet for method {} (f32 and f16 are)",
             other.name(),
@@ -152,10 +162,12 @@ pub fn create(kind: MethodKind, settings: &Settings, first: &Frame) -> Result<Bo
     }
 }
 
-fn create_in<P: HostPrecision>(kind: MethodKind, first: &Frame) -> Result<Box<dyn Denoiser>> {
+fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Frame) -> Result<Box<dyn Denoiser>> {
     Ok(match kind {
         MethodKind::None => Box::new(Passthrough::<P>::new(first)),
         MethodKind::Ta => Box::new(TemporalAccumulation::<P>::new(first, true)?),
+        MethodKind::Atrous => Box::new(Atrous::<P>::new(first, false, settings.phi_color)?),
+        MethodKind::SureAtrous => Box::new(Atrous::<P>::new(first, true, settings.phi_color)?),
     })
 }
 

@@ -94,8 +94,7 @@ unsafe fn interior<S: FloatElement, const K: usize, const N: usize>(
             // hardware prefetchers follow. Fetch each plane's line PREFETCH floats ahead.
             for j in 0..K * K {
                 let ahead = kp.wrapping_add(j * kstride + x + PREFETCH) as *const i8;
-                // SAFETY: prefetching never faults.
-                unsafe { _mm_prefetch::<_MM_HINT_T0>(ahead) };
+                _mm_prefetch::<_MM_HINT_T0>(ahead);
             }
         }
         let mut acc = [_mm256_setzero_ps(); N];

@@ -1,0 +1,100 @@
+//! À-trous steps in f32 arithmetic over f32 or f16 storage.
+
+use super::{AtrousGuides, AtrousParams, B3};
+use crate::precision::FloatElement;
+use crate::view::{View, ViewMut};
+use crate::Isa;
+
+pub(crate) mod scalar;
+
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod avx2;
+
+/// How geometry stops edges.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Geometry {
+    /// Distance from the tangent plane (normal and position).
+    Plane,
+    /// Euclidean position distance.
+    Position,
+    /// Relative depth difference.
+    Depth,
+    /// No geometry test.
+    None,
+}
+
+/// Everything a step needs, resolved once.
+pub(crate) struct Ctx<'c, 'a, S> {
+    pub hole: usize,
+    pub groups: usize,
+    pub with_variance: bool,
+    /// `phi_color * 2^-level`.
+    pub color_scale: f32,
+    pub eps: f32,
+    /// `1 / sigma_normal^2` (0 without normals).
+    pub inv_normal2: f32,
+    pub geometry: Geometry,
+    /// `1 / sigma^2` of the geometry term at this level.
+    pub inv_geom2: f32,
+    pub guides: &'c AtrousGuides<'a, S>,
+    pub src: &'c View<'a, S>,
+}
+
+impl<'c, 'a, S: FloatElement> Ctx<'c, 'a, S> {
+    pub(crate) fn new(
+        level: u32,
+        groups: usize,
+        with_variance: bool,
+        p: &AtrousParams,
+        guides: &'c AtrousGuides<'a, S>,
+        src: &'c View<'a, S>,
+    ) -> Self {
+        let hole = 1usize << level;
+        let scale = hole as f32;
+        let (geometry, inv_geom2) = match (guides.normal.is_some(), guides.position.is_some(), guides.depth.is_some()) {
+            (true, true, _) => (Geometry::Plane, 1.0 / (p.sigma_plane * p.sigma_plane)),
+            (false, true, _) => (Geometry::Position, 1.0 / ((p.sigma_plane * scale) * (p.sigma_plane * scale))),
+            (_, false, true) => (Geometry::Depth, 1.0 / ((p.sigma_depth * scale) * (p.sigma_depth * scale))),
+            _ => (Geometry::None, 0.0),
+        };
+        Ctx {
+            hole,
+            groups,
+            with_variance,
+            color_scale: p.phi_color / scale,
+            eps: p.eps,
+            inv_normal2: if guides.normal.is_some() { 1.0 / (p.sigma_normal * p.sigma_normal) } else { 0.0 },
+            geometry,
+            inv_geom2,
+            guides,
+            src,
+        }
+    }
+}
+
+/// The B3 tap weight of `(dy, dx)` in `0..5`.
+#[inline(always)]
+pub(crate) fn h2(dy: usize, dx: usize) -> f32 {
+    B3[dy] * B3[dx]
+}
+
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn step<S: FloatElement>(
+    isa: Isa,
+    level: u32,
+    groups: usize,
+    with_variance: bool,
+    params: &AtrousParams,
+    guides: &AtrousGuides<'_, S>,
+    src: &View<'_, S>,
+    dst: &mut ViewMut<'_, S>,
+    y0: usize,
+) {
+    let ctx = Ctx::new(level, groups, with_variance, params, guides, src);
+    match isa {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the caller checked support.
+        Isa::Avx2 => unsafe { avx2::step(&ctx, dst, y0) },
+        _ => scalar::step(&ctx, dst, y0),
+    }
+}
