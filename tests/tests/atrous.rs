@@ -20,6 +20,7 @@ enum Geo {
     NoneAtAll,
 }
 
+#[allow(clippy::too_many_arguments)]
 fn run_step(
     isa: Isa,
     level: u32,
