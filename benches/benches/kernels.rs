@@ -241,9 +241,63 @@ fn bench_misc(c: &mut Criterion) {
     g.finish();
 }
 
+/// The à-trous methods end to end (demodulation, noise estimate, 5 levels,
+/// SURE, remodulation) on a 1280x720 frame of rendered content.
+fn bench_atrous(c: &mut Criterion) {
+    use mcdenoise::methods::{self, MethodKind, Settings, Timings};
+    let frame = tiled_cornell();
+    let mut g = c.benchmark_group("atrous_1280x720");
+    g.sample_size(10).measurement_time(Duration::from_secs(5)).warm_up_time(Duration::from_secs(1));
+    for isa in isas() {
+        for threads in [1, 2] {
+            for kind in [MethodKind::Atrous, MethodKind::SureAtrous] {
+                let settings = Settings { isa, threads, ..Settings::default() };
+                let mut den = methods::create(kind, &settings, &frame).unwrap();
+                let mut ctx = methods::context(&settings).unwrap();
+                let mut t = Timings::default();
+                g.bench_function(BenchmarkId::new(format!("{}/{}", kind.name(), isa.name()), format!("{threads}t")), |b| {
+                    b.iter(|| den.denoise(&frame, &mut ctx, &mut t).unwrap())
+                });
+            }
+        }
+    }
+    g.finish();
+}
+
+/// One à-trous step (the core kernel alone) at level 0 and 4.
+fn bench_atrous_step(c: &mut Criterion) {
+    use mcdenoise_core::atrous::{self, AtrousGuides, AtrousParams};
+    let mut g = c.benchmark_group("atrous_step_1280x720");
+    g.sample_size(10).measurement_time(Duration::from_secs(3)).warm_up_time(Duration::from_secs(1));
+    let src = values(3 * PLANE, 0.0, 1.0, 20);
+    let noise = values(PLANE, 0.01, 0.02, 21);
+    let mut normal = vec![0.0f32; 3 * PLANE];
+    normal[2 * PLANE..].fill(1.0);
+    let position = values(3 * PLANE, 0.0, 0.001, 22);
+    let mut out = vec![0.0f32; 3 * PLANE];
+    let guides = AtrousGuides {
+        noise: View::new(&noise, 1, W, H).unwrap(),
+        normal: Some(View::new(&normal, 3, W, H).unwrap()),
+        position: Some(View::new(&position, 3, W, H).unwrap()),
+        depth: None,
+    };
+    let sv = View::new(&src, 3, W, H).unwrap();
+    for isa in isas() {
+        for level in [0u32, 4] {
+            g.bench_function(BenchmarkId::new(format!("level{level}"), isa.name()), |b| {
+                b.iter(|| {
+                    let mut dv = ViewMut::new(&mut out, 3, W, H).unwrap();
+                    atrous::step::<F32>(isa, level, 1, false, &AtrousParams::default(), &guides, &sv, &mut dv, 0).unwrap()
+                })
+            });
+        }
+    }
+    g.finish();
+}
+
 criterion_group! {
     name = benches;
     config = Criterion::default();
-    targets = bench_fused, bench_unfold, bench_conv, bench_two_scale, bench_misc
+    targets = bench_fused, bench_unfold, bench_conv, bench_two_scale, bench_misc, bench_atrous, bench_atrous_step
 }
 criterion_main!(benches);

@@ -164,3 +164,31 @@ pub fn fma_peak(iters: usize) -> f32 {
     // SAFETY: checked just above.
     unsafe { inner(iters) }
 }
+
+/// A 1280x720 frame made by tiling the 256x256 Cornell-box fixture (16 spp,
+/// with its second estimate, albedo, normal, depth and position), so the
+/// method benches run on rendered content at the bench size.
+pub fn tiled_cornell() -> mcdenoise::Frame {
+    use mcdenoise::frame::{Buffer, Frame, Limits};
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/cornell16/frame_0000.exr");
+    let src = Frame::load(&dir, &Limits::default()).expect("the Cornell fixture loads");
+    let (sw, sh) = (src.width, src.height);
+    let tile = |b: Buffer| -> Vec<f32> {
+        let d = src.get(b).expect("fixture buffer");
+        let ch = b.channels();
+        let mut out = vec![0.0f32; ch * W * H];
+        for c in 0..ch {
+            for y in 0..H {
+                for x in 0..W {
+                    out[c * W * H + y * W + x] = d[c * sw * sh + (y % sh) * sw + (x % sw)];
+                }
+            }
+        }
+        out
+    };
+    let mut f = Frame::from_color("tiled.exr", W, H, tile(Buffer::Color)).expect("shape");
+    for b in [Buffer::ColorB, Buffer::Albedo, Buffer::Normal, Buffer::Depth, Buffer::Position] {
+        f.set(b, tile(b)).expect("shape");
+    }
+    f
+}

@@ -1,6 +1,8 @@
-//! AVX2 à-trous step: eight pixels at a time where all 25 taps lie inside
-//! the image (the same operations in the same order as the scalar pixel, FMA
-//! aside), the scalar pixel near the border.
+//! AVX2 à-trous step: eight pixels at a time wherever the 25 taps stay
+//! inside the image horizontally (tap rows above or below the image are
+//! skipped, as in the scalar pixel), the scalar pixel in the left and right
+//! margins. Same operations in the same order as the scalar pixel, except
+//! FMA contractions and the reciprocal (one Newton step, 2 ulp).
 
 use core::arch::x86_64::*;
 
@@ -9,129 +11,248 @@ use super::{h2, Ctx, Geometry};
 use crate::math::avx2::exp;
 use crate::precision::FloatElement;
 use crate::simd::avx2::{load8, store8};
-use crate::view::{View, ViewMut};
-
-#[inline(always)]
-unsafe fn ld<S: FloatElement>(v: &View<'_, S>, c: usize, y: usize, x: usize) -> __m256 {
-    // SAFETY: the caller keeps (c, y, x .. x + 8) inside the view.
-    unsafe { load8(v.ptr(c, y).add(x)) }
-}
+use crate::view::ViewMut;
 
 /// # Safety
 /// AVX2, FMA and F16C must be supported.
 #[target_feature(enable = "avx2,fma,f16c")]
 pub(crate) unsafe fn step<S: FloatElement>(c: &Ctx<'_, '_, S>, dst: &mut ViewMut<'_, S>, y0: usize) {
-    let (w, h) = (c.src.width(), c.src.height());
+    let w = c.src.width();
     let m = 2 * c.hole;
     let nout = dst.channels();
     let mut out = [0.0f32; MAX_OUT];
     for yo in 0..dst.height() {
         let y = y0 + yo;
-        let mut x = 0;
-        while x < w {
-            if y >= m && y + m < h && x >= m && x + 8 + m <= w {
-                // SAFETY: every tap of the eight pixels lies inside the image.
-                unsafe { interior8(c, dst, y, yo, x) };
-                x += 8;
-            } else {
-                scalar::pixel(c, y, x, &mut out);
-                for (ch, &v) in out.iter().enumerate().take(nout) {
-                    dst.row_mut(ch, yo)[x] = S::from_f32(v);
-                }
-                x += 1;
+        let mut scalar_px = |x: usize, dst: &mut ViewMut<'_, S>| {
+            scalar::pixel(c, y, x, &mut out);
+            for (ch, &v) in out.iter().enumerate().take(nout) {
+                dst.row_mut(ch, yo)[x] = S::from_f32(v);
             }
+        };
+        let mut x = 0;
+        while x < w.min(m) {
+            scalar_px(x, dst);
+            x += 1;
+        }
+        // The next output row's tap rows were last read 2^level rows ago and
+        // have left L2 at the coarse levels: ask for them now (into L2).
+        if y + 1 < c.src.height() {
+            for dy in 0..5 {
+                if let Some(qy) = (y + 1 + dy * c.hole).checked_sub(2 * c.hole).filter(|&v| v < c.src.height()) {
+                    prefetch_row(c, qy);
+                }
+            }
+        }
+        // The rows every tap reads, once per output row: the centre row and
+        // the five tap rows (None above or below the image).
+        let centre = rows(c, y);
+        let taps: [Option<RowPtrs<S>>; 5] = core::array::from_fn(|dy| {
+            (y + dy * c.hole).checked_sub(2 * c.hole).filter(|&v| v < c.src.height()).map(|qy| rows(c, qy))
+        });
+        macro_rules! run {
+            ($g:literal, $v:literal, $geo:literal) => {
+                while x + 8 + m <= w {
+                    // SAFETY: every tap column of the eight pixels lies inside the image.
+                    unsafe { interior8::<S, $g, $v, $geo>(c, &centre, &taps, dst, yo, x) };
+                    x += 8;
+                }
+            };
+        }
+        // Monomorphised so every loop bound is a constant and the
+        // accumulators stay in registers.
+        match (c.groups, c.with_variance, c.geometry) {
+            (1, false, Geometry::Plane) => run!(1, false, 0),
+            (1, false, Geometry::Position) => run!(1, false, 1),
+            (1, false, Geometry::Depth) => run!(1, false, 2),
+            (1, false, Geometry::None) => run!(1, false, 3),
+            (1, true, Geometry::Plane) => run!(1, true, 0),
+            (1, true, Geometry::Position) => run!(1, true, 1),
+            (1, true, Geometry::Depth) => run!(1, true, 2),
+            (1, true, Geometry::None) => run!(1, true, 3),
+            (2, false, Geometry::Plane) => run!(2, false, 0),
+            (2, false, Geometry::Position) => run!(2, false, 1),
+            (2, false, Geometry::Depth) => run!(2, false, 2),
+            (2, false, Geometry::None) => run!(2, false, 3),
+            (2, true, Geometry::Plane) => run!(2, true, 0),
+            (2, true, Geometry::Position) => run!(2, true, 1),
+            (2, true, Geometry::Depth) => run!(2, true, 2),
+            (2, true, Geometry::None) => run!(2, true, 3),
+            _ => {} // groups is checked to be 1 or 2: unreachable
+        }
+        while x < w {
+            scalar_px(x, dst);
+            x += 1;
         }
     }
 }
 
+/// Pointers to one row of every plane a tap reads.
+struct RowPtrs<S> {
+    src: [*const S; MAX_OUT],
+    noise: *const S,
+    normal: [*const S; 3],
+    position: [*const S; 3],
+    depth: *const S,
+}
+
+fn rows<S: FloatElement>(c: &Ctx<'_, '_, S>, yy: usize) -> RowPtrs<S> {
+    let null = core::ptr::null::<S>();
+    let g = c.guides;
+    let nsrc = 3 * c.groups + usize::from(c.with_variance);
+    RowPtrs {
+        src: core::array::from_fn(|ch| if ch < nsrc { c.src.ptr(ch, yy) } else { null }),
+        noise: g.noise.ptr(0, yy),
+        normal: core::array::from_fn(|k| g.normal.as_ref().map_or(null, |v| v.ptr(k, yy))),
+        position: core::array::from_fn(|k| g.position.as_ref().map_or(null, |v| v.ptr(k, yy))),
+        depth: g.depth.as_ref().map_or(null, |v| v.ptr(0, yy)),
+    }
+}
+
+/// Prefetches row `yy` of every plane a tap reads into L2.
+#[target_feature(enable = "avx2,fma,f16c")]
+fn prefetch_row<S: FloatElement>(c: &Ctx<'_, '_, S>, yy: usize) {
+    let r = rows(c, yy);
+    let bytes = c.src.width() * core::mem::size_of::<S>();
+    let mut one = |p: *const S| {
+        if p.is_null() {
+            return;
+        }
+        let mut off = 0;
+        while off < bytes {
+            _mm_prefetch::<_MM_HINT_T1>((p as *const i8).wrapping_add(off));
+            off += 64;
+        }
+    };
+    for p in r.src.iter().chain(r.normal.iter()).chain(r.position.iter()) {
+        one(*p);
+    }
+    one(r.noise);
+    one(r.depth);
+}
+
 /// # Safety
-/// AVX2/FMA/F16C; all taps of pixels `x .. x + 8` on row `y` inside the image.
+/// AVX2/FMA/F16C; columns `x - 2 hole .. x + 8 + 2 hole` inside the image;
+/// `centre` and `taps` are the rows of output row `yo`.
 #[inline]
 #[target_feature(enable = "avx2,fma,f16c")]
-unsafe fn interior8<S: FloatElement>(c: &Ctx<'_, '_, S>, dst: &mut ViewMut<'_, S>, y: usize, yo: usize, x: usize) {
-    let src = c.src;
+unsafe fn interior8<S: FloatElement, const G: usize, const VAR: bool, const GEO: u8>(
+    c: &Ctx<'_, '_, S>,
+    pr: &RowPtrs<S>,
+    taps: &[Option<RowPtrs<S>>; 5],
+    dst: &mut ViewMut<'_, S>,
+    yo: usize,
+    x: usize,
+) {
     let g = c.guides;
-    let nc = 3 * c.groups;
-    let inv_g = _mm256_set1_ps(1.0 / c.groups as f32);
-    // SAFETY (all loads in this function): the caller guarantees every tap is inside.
-    let guide = |yy: usize, xx: usize, ch: usize| unsafe {
-        let mut s = ld(src, ch, yy, xx);
-        for gi in 1..c.groups {
-            s = _mm256_add_ps(s, ld(src, 3 * gi + ch, yy, xx));
+    let nc = 3 * G;
+    let geo = match GEO {
+        0 => Geometry::Plane,
+        1 => Geometry::Position,
+        2 => Geometry::Depth,
+        _ => Geometry::None,
+    };
+    // SAFETY (every load below): pointers come from in-range rows and
+    // columns x - 2 hole .. x + 8 + 2 hole are inside (caller).
+    let ld = |p: *const S, xx: usize| unsafe { load8(p.add(xx)) };
+    let zero = _mm256_setzero_ps();
+    let one = _mm256_set1_ps(1.0);
+    let two = _mm256_set1_ps(2.0);
+    let inv_g = _mm256_set1_ps(1.0 / G as f32);
+    let guide = |r: &RowPtrs<S>, xx: usize, ch: usize| {
+        let mut s = ld(r.src[ch], xx);
+        if G == 2 {
+            s = _mm256_add_ps(s, ld(r.src[3 + ch], xx));
         }
         _mm256_mul_ps(s, inv_g)
     };
-    let gp = [guide(y, x, 0), guide(y, x, 1), guide(y, x, 2)];
-    let vp = unsafe { ld(&g.noise, 0, y, x) };
+    let gp = [guide(pr, x, 0), guide(pr, x, 1), guide(pr, x, 2)];
+    let vp = ld(pr.noise, x);
+    // Plane needs normals; the other geometries may have them too.
+    let has_n = g.normal.is_some();
+    let np: [__m256; 3] = core::array::from_fn(|k| if has_n { ld(pr.normal[k], x) } else { zero });
+    let uses_pos = matches!(geo, Geometry::Plane | Geometry::Position);
+    let xp: [__m256; 3] = core::array::from_fn(|k| if uses_pos { ld(pr.position[k], x) } else { zero });
+    let zp = if geo == Geometry::Depth { ld(pr.depth, x) } else { zero };
+    let inv_zp = _mm256_div_ps(one, _mm256_max_ps(zp, _mm256_set1_ps(1e-20)));
     let cscale = _mm256_set1_ps(c.color_scale);
     let ceps = _mm256_set1_ps(c.eps);
-    let v3 = |v: &View<'_, S>, yy: usize, xx: usize| unsafe { [ld(v, 0, yy, xx), ld(v, 1, yy, xx), ld(v, 2, yy, xx)] };
-    let zero = _mm256_setzero_ps();
-    let np = g.normal.as_ref().map(|n| v3(n, y, x)).unwrap_or([zero; 3]);
-    let xp = g.position.as_ref().map(|p| v3(p, y, x)).unwrap_or([zero; 3]);
-    let zp = g.depth.as_ref().map(|d| unsafe { ld(d, 0, y, x) }).unwrap_or(zero);
-    let inv_zp = _mm256_div_ps(_mm256_set1_ps(1.0), _mm256_max_ps(zp, _mm256_set1_ps(1e-20)));
     let inv_n2 = _mm256_set1_ps(c.inv_normal2);
     let inv_geo = _mm256_set1_ps(c.inv_geom2);
-    let mut wsum = zero;
-    let mut acc = [zero; 6];
-    let mut accv = zero;
+    // n(p) . x(p), so the tangent-plane distance is n(p) . x(q) - n(p) . x(p).
+    let npxp = _mm256_fmadd_ps(np[2], xp[2], _mm256_fmadd_ps(np[1], xp[1], _mm256_mul_ps(np[0], xp[0])));
+    // Pass 1: the 25 weights (0 for tap rows outside the image), into a
+    // small array, so that pass 2 keeps only the accumulators in registers.
+    let mut wts = [zero; 25];
     for dy in 0..5 {
-        let qy = y + dy * c.hole - 2 * c.hole;
+        let Some(qr) = &taps[dy] else { continue };
         for dx in 0..5 {
             let qx = x + dx * c.hole - 2 * c.hole;
             let mut dc = zero;
             for ch in 0..3 {
-                let d = _mm256_sub_ps(gp[ch], guide(qy, qx, ch));
+                let d = _mm256_sub_ps(gp[ch], guide(qr, qx, ch));
                 dc = _mm256_fmadd_ps(d, d, dc);
             }
             // min(vq, vp) as the scalar `if vq < vp { vq } else { vp }`.
-            let v = _mm256_min_ps(unsafe { ld(&g.noise, 0, qy, qx) }, vp);
-            let mut t = _mm256_div_ps(dc, _mm256_fmadd_ps(cscale, v, ceps));
-            if let Some(n) = &g.normal {
-                let nq = v3(n, qy, qx);
+            let v = _mm256_min_ps(ld(qr.noise, qx), vp);
+            let den = _mm256_fmadd_ps(cscale, v, ceps);
+            let r0 = _mm256_rcp_ps(den);
+            let rcp = _mm256_mul_ps(r0, _mm256_fnmadd_ps(den, r0, two));
+            let mut t = _mm256_mul_ps(dc, rcp);
+            if has_n {
                 let mut dn = zero;
                 for k in 0..3 {
-                    let d = _mm256_sub_ps(np[k], nq[k]);
+                    let d = _mm256_sub_ps(np[k], ld(qr.normal[k], qx));
                     dn = _mm256_fmadd_ps(d, d, dn);
                 }
                 t = _mm256_fmadd_ps(dn, inv_n2, t);
             }
-            match c.geometry {
-                Geometry::Plane | Geometry::Position => {
-                    let xq = v3(g.position.as_ref().expect("position"), qy, qx);
-                    let d = [_mm256_sub_ps(xq[0], xp[0]), _mm256_sub_ps(xq[1], xp[1]), _mm256_sub_ps(xq[2], xp[2])];
-                    let gd = if c.geometry == Geometry::Plane {
-                        let pd = _mm256_fmadd_ps(np[2], d[2], _mm256_fmadd_ps(np[1], d[1], _mm256_mul_ps(np[0], d[0])));
-                        _mm256_mul_ps(pd, pd)
-                    } else {
-                        _mm256_fmadd_ps(d[2], d[2], _mm256_fmadd_ps(d[1], d[1], _mm256_mul_ps(d[0], d[0])))
-                    };
+            match geo {
+                Geometry::Plane => {
+                    let q: [__m256; 3] = core::array::from_fn(|k| ld(qr.position[k], qx));
+                    let pd = _mm256_sub_ps(
+                        _mm256_fmadd_ps(np[2], q[2], _mm256_fmadd_ps(np[1], q[1], _mm256_mul_ps(np[0], q[0]))),
+                        npxp,
+                    );
+                    t = _mm256_fmadd_ps(_mm256_mul_ps(pd, pd), inv_geo, t);
+                }
+                Geometry::Position => {
+                    let d: [__m256; 3] = core::array::from_fn(|k| _mm256_sub_ps(ld(qr.position[k], qx), xp[k]));
+                    let gd = _mm256_fmadd_ps(d[2], d[2], _mm256_fmadd_ps(d[1], d[1], _mm256_mul_ps(d[0], d[0])));
                     t = _mm256_fmadd_ps(gd, inv_geo, t);
                 }
                 Geometry::Depth => {
-                    let zq = unsafe { ld(g.depth.as_ref().expect("depth"), 0, qy, qx) };
-                    let r = _mm256_mul_ps(_mm256_sub_ps(zq, zp), inv_zp);
+                    let r = _mm256_mul_ps(_mm256_sub_ps(ld(qr.depth, qx), zp), inv_zp);
                     t = _mm256_fmadd_ps(_mm256_mul_ps(r, r), inv_geo, t);
                 }
                 Geometry::None => {}
             }
-            let wt = _mm256_mul_ps(_mm256_set1_ps(h2(dy, dx)), exp(_mm256_sub_ps(zero, t)));
+            wts[dy * 5 + dx] = _mm256_mul_ps(_mm256_set1_ps(h2(dy, dx)), exp(_mm256_sub_ps(zero, t)));
+        }
+    }
+    // Pass 2: accumulate, taps in the same order.
+    let mut wsum = zero;
+    let mut acc = [zero; 6]; // only the first 3 * G are used
+    let mut accv = zero;
+    for dy in 0..5 {
+        let Some(qr) = &taps[dy] else { continue };
+        for dx in 0..5 {
+            let qx = x + dx * c.hole - 2 * c.hole;
+            let wt = wts[dy * 5 + dx];
             wsum = _mm256_add_ps(wsum, wt);
-            for (ch, a) in acc.iter_mut().enumerate().take(nc) {
-                *a = _mm256_fmadd_ps(wt, unsafe { ld(src, ch, qy, qx) }, *a);
+            for ch in 0..nc {
+                acc[ch] = _mm256_fmadd_ps(wt, ld(qr.src[ch], qx), acc[ch]);
             }
-            if c.with_variance {
-                accv = _mm256_fmadd_ps(_mm256_mul_ps(wt, wt), unsafe { ld(src, nc, qy, qx) }, accv);
+            if VAR {
+                accv = _mm256_fmadd_ps(_mm256_mul_ps(wt, wt), ld(qr.src[nc], qx), accv);
             }
         }
     }
-    let inv = _mm256_div_ps(_mm256_set1_ps(1.0), wsum);
-    for (ch, a) in acc.iter().enumerate().take(nc) {
+    let inv = _mm256_div_ps(one, wsum);
+    for ch in 0..nc {
         // SAFETY: x + 8 <= width.
-        unsafe { store8(dst.ptr_mut(ch, yo).add(x), _mm256_mul_ps(*a, inv)) };
+        unsafe { store8(dst.ptr_mut(ch, yo).add(x), _mm256_mul_ps(acc[ch], inv)) };
     }
-    if c.with_variance {
+    if VAR {
         // SAFETY: as above.
         unsafe {
             store8(dst.ptr_mut(nc, yo).add(x), _mm256_mul_ps(_mm256_mul_ps(accv, inv), inv));

@@ -1,0 +1,30 @@
+//! One à-trous step at 1280x720, for instruction-count profiling
+//! (`valgrind --tool=callgrind target/release/examples/profile_step`).
+use mcdenoise_benches::{values, H, W};
+use mcdenoise_core::atrous::{self, AtrousGuides, AtrousParams};
+use mcdenoise_core::{Isa, View, ViewMut, F32};
+
+fn main() {
+    let plane = W * H;
+    let level: u32 = std::env::args().nth(1).and_then(|v| v.parse().ok()).unwrap_or(0);
+    let src = values(3 * plane, 0.0, 1.0, 20);
+    let noise = values(plane, 0.01, 0.02, 21);
+    let mut normal = vec![0.0f32; 3 * plane];
+    normal[2 * plane..].fill(1.0);
+    let position = values(3 * plane, 0.0, 0.001, 22);
+    let mut out = vec![0.0f32; 3 * plane];
+    let guides = AtrousGuides {
+        noise: View::new(&noise, 1, W, H).unwrap(),
+        normal: Some(View::new(&normal, 3, W, H).unwrap()),
+        position: Some(View::new(&position, 3, W, H).unwrap()),
+        depth: None,
+    };
+    let sv = View::new(&src, 3, W, H).unwrap();
+    let reps: usize = std::env::args().nth(2).and_then(|v| v.parse().ok()).unwrap_or(1);
+    let t = std::time::Instant::now();
+    for _ in 0..reps {
+        let mut dv = ViewMut::new(&mut out, 3, W, H).unwrap();
+        atrous::step::<F32>(Isa::detect(), level, 1, false, &AtrousParams::default(), &guides, &sv, &mut dv, 0).unwrap();
+    }
+    eprintln!("level {level}: {:?} per step (checksum {})", t.elapsed() / reps as u32, out.iter().sum::<f32>());
+}
