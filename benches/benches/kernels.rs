@@ -255,9 +255,10 @@ fn bench_atrous(c: &mut Criterion) {
                 let mut den = methods::create(kind, &settings, &frame).unwrap();
                 let mut ctx = methods::context(&settings).unwrap();
                 let mut t = Timings::default();
-                g.bench_function(BenchmarkId::new(format!("{}/{}", kind.name(), isa.name()), format!("{threads}t")), |b| {
-                    b.iter(|| den.denoise(&frame, &mut ctx, &mut t).unwrap())
-                });
+                g.bench_function(
+                    BenchmarkId::new(format!("{}/{}", kind.name(), isa.name()), format!("{threads}t")),
+                    |b| b.iter(|| den.denoise(&frame, &mut ctx, &mut t).unwrap()),
+                );
             }
         }
     }
@@ -287,7 +288,8 @@ fn bench_atrous_step(c: &mut Criterion) {
             g.bench_function(BenchmarkId::new(format!("level{level}"), isa.name()), |b| {
                 b.iter(|| {
                     let mut dv = ViewMut::new(&mut out, 3, W, H).unwrap();
-                    atrous::step::<F32>(isa, level, 1, false, &AtrousParams::default(), &guides, &sv, &mut dv, 0).unwrap()
+                    atrous::step::<F32>(isa, level, 1, false, &AtrousParams::default(), &guides, &sv, &mut dv, 0)
+                        .unwrap()
                 })
             });
         }

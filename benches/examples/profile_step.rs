@@ -24,7 +24,8 @@ fn main() {
     let t = std::time::Instant::now();
     for _ in 0..reps {
         let mut dv = ViewMut::new(&mut out, 3, W, H).unwrap();
-        atrous::step::<F32>(Isa::detect(), level, 1, false, &AtrousParams::default(), &guides, &sv, &mut dv, 0).unwrap();
+        atrous::step::<F32>(Isa::detect(), level, 1, false, &AtrousParams::default(), &guides, &sv, &mut dv, 0)
+            .unwrap();
     }
     eprintln!("level {level}: {:?} per step (checksum {})", t.elapsed() / reps as u32, out.iter().sum::<f32>());
 }

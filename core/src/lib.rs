@@ -33,6 +33,7 @@ pub mod isa;
 pub mod math;
 pub mod pool;
 pub mod precision;
+pub mod real;
 pub mod simd;
 pub mod softmax;
 pub mod temporal;

@@ -12,7 +12,7 @@ use mcdenoise_core::softmax::SoftmaxPrecision;
 use mcdenoise_core::temporal::TemporalPrecision;
 use mcdenoise_core::tonemap::TonemapPrecision;
 use mcdenoise_core::unfold::UnfoldPrecision;
-use mcdenoise_core::{Precision, View, ViewMut, F16, F32};
+use mcdenoise_core::{F16Arith, Precision, View, ViewMut, F16, F32};
 
 use crate::error::{HostError, Result};
 
@@ -91,6 +91,15 @@ impl HostPrecision for F16 {
         for (d, &s) in dst.iter_mut().zip(src) {
             *d = s.to_f32();
         }
+    }
+}
+
+impl HostPrecision for F16Arith {
+    fn encode(src: &[f32], dst: &mut [half::f16]) {
+        F16::encode(src, dst)
+    }
+    fn decode(src: &[half::f16], dst: &mut [f32]) {
+        F16::decode(src, dst)
     }
 }
 

@@ -40,7 +40,7 @@
 //! 0, where it is signal well above the noise at 1.
 
 use crate::error::{check_shape, Error, Result, Shape};
-use crate::precision::{sealed::Sealed, Precision, F16, F32};
+use crate::precision::{sealed::Sealed, F16Arith, Precision, F16, F32};
 use crate::unfold::check_band;
 use crate::view::{View, ViewMut};
 use crate::Isa;
@@ -108,7 +108,7 @@ pub trait AtrousPrecision: Precision + Sealed {
 }
 
 macro_rules! float_atrous {
-    ($p:ty) => {
+    ($p:ty, $a:ty) => {
         impl AtrousPrecision for $p {
             fn step_impl(
                 isa: Isa,
@@ -121,13 +121,14 @@ macro_rules! float_atrous {
                 dst: &mut ViewMut<'_, Self::Store>,
                 y0: usize,
             ) {
-                float::step(isa, level, groups, with_variance, params, guides, src, dst, y0)
+                float::step::<_, $a>(isa, level, groups, with_variance, params, guides, src, dst, y0)
             }
         }
     };
 }
-float_atrous!(F32);
-float_atrous!(F16);
+float_atrous!(F32, f32);
+float_atrous!(F16, f32);
+float_atrous!(F16Arith, crate::real::H);
 
 /// One à-trous step at `level` for output rows `y0 ..`.
 ///

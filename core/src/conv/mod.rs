@@ -14,7 +14,7 @@
 //! buffers) comes with the training engine.
 
 use crate::error::{check_scratch, Error, Result, Shape};
-use crate::precision::{sealed::Sealed, Precision, F16, F32};
+use crate::precision::{sealed::Sealed, F16Arith, Precision, F16, F32};
 use crate::unfold::check_band;
 use crate::view::{View, ViewMut};
 use crate::Isa;
@@ -122,7 +122,7 @@ pub trait ConvPrecision: Precision + Sealed {
 }
 
 macro_rules! float_conv {
-    ($p:ty) => {
+    ($p:ty, $a:ty) => {
         impl ConvPrecision for $p {
             fn forward_impl(
                 isa: Isa,
@@ -132,13 +132,14 @@ macro_rules! float_conv {
                 y0: usize,
                 scratch: &mut [f32],
             ) {
-                float::forward(isa, layer, src, dst, y0, scratch)
+                float::forward::<_, $a>(isa, layer, src, dst, y0, scratch)
             }
         }
     };
 }
-float_conv!(F32);
-float_conv!(F16);
+float_conv!(F32, f32);
+float_conv!(F16, f32);
+float_conv!(F16Arith, crate::real::H);
 
 /// Scratch words [`conv2d`] needs for a layer of kernel size `k` from `cin`
 /// to `cout` channels on rows of `width` pixels (a row accumulator plus the

@@ -14,7 +14,7 @@
 //! two column sums: `((f00 + f10) + (f01 + f11)) * 0.25`.
 
 use crate::error::{check_shape, Error, Result, Shape};
-use crate::precision::{sealed::Sealed, Precision, F16, F32};
+use crate::precision::{sealed::Sealed, F16Arith, Precision, F16, F32};
 use crate::unfold::check_band;
 use crate::view::{View, ViewMut};
 use crate::Isa;
@@ -53,7 +53,7 @@ pub trait PoolPrecision: Precision + Sealed {
 }
 
 macro_rules! float_pool {
-    ($p:ty) => {
+    ($p:ty, $a:ty) => {
         impl PoolPrecision for $p {
             fn reduce_impl(
                 isa: Isa,
@@ -62,10 +62,10 @@ macro_rules! float_pool {
                 dst: &mut ViewMut<'_, Self::Store>,
                 y0: usize,
             ) {
-                float::reduce(isa, op, src, dst, y0)
+                float::reduce::<_, $a>(isa, op, src, dst, y0)
             }
             fn upsample_impl(isa: Isa, src: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>, y0: usize) {
-                float::upsample(isa, src, dst, y0)
+                float::upsample::<_, $a>(isa, src, dst, y0)
             }
             fn composite_impl(
                 isa: Isa,
@@ -75,13 +75,14 @@ macro_rules! float_pool {
                 dst: &mut ViewMut<'_, Self::Store>,
                 y0: usize,
             ) {
-                float::composite(isa, fine, coarse, alpha, dst, y0)
+                float::composite::<_, $a>(isa, fine, coarse, alpha, dst, y0)
             }
         }
     };
 }
-float_pool!(F32);
-float_pool!(F16);
+float_pool!(F32, f32);
+float_pool!(F16, f32);
+float_pool!(F16Arith, crate::real::H);
 
 /// 2x2 reduction (mean or max) of `src` into coarse rows `y0 .. y0 + dst.height()`;
 /// the full coarse image is `ceil(W/2) x ceil(H/2)`.

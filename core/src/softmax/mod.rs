@@ -33,7 +33,7 @@
 //!   accurate as the direct one.
 
 use crate::error::{check_scratch, check_shape, Error, Result, Shape};
-use crate::precision::{sealed::Sealed, Precision, F16, F32};
+use crate::precision::{sealed::Sealed, F16Arith, Precision, F16, F32};
 use crate::unfold::check_band;
 use crate::view::{View, ViewMut};
 use crate::{check_kernel_size, Isa};
@@ -123,6 +123,31 @@ macro_rules! float_softmax {
 }
 float_softmax!(F32);
 float_softmax!(F16);
+
+impl SoftmaxPrecision for F16Arith {
+    fn fused_impl(
+        _isa: Isa,
+        path: WindowPath,
+        inp: &FusedInputs<'_, Self::Store>,
+        dst: &mut ViewMut<'_, Self::Store>,
+        y0: usize,
+        scratch: &mut [f32],
+    ) {
+        float::fused_scalar::<_, crate::real::H>(path, inp, dst, y0, scratch)
+    }
+    fn kernels_impl(
+        _isa: Isa,
+        k: usize,
+        logits: &View<'_, Self::Store>,
+        dst: &mut ViewMut<'_, Self::Store>,
+        y0: usize,
+    ) {
+        float::scalar::kernels::<_, crate::real::H>(k, logits, dst, y0)
+    }
+    fn channel_impl(_isa: Isa, src: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>) {
+        float::scalar::channel::<_, crate::real::H>(src, dst)
+    }
+}
 
 /// Scratch words [`fused_filter`] needs for these sizes, channels and width
 /// (independent of the number of output rows).

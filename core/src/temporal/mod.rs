@@ -21,7 +21,7 @@
 //! (a fraction of the frame's position bounding-box diagonal).
 
 use crate::error::{check_shape, Error, Result, Shape};
-use crate::precision::{sealed::Sealed, Precision, F16, F32};
+use crate::precision::{sealed::Sealed, F16Arith, Precision, F16, F32};
 use crate::unfold::check_band;
 use crate::view::{View, ViewMut};
 use crate::Isa;
@@ -84,7 +84,7 @@ pub trait TemporalPrecision: Precision + Sealed {
 }
 
 macro_rules! float_temporal {
-    ($p:ty) => {
+    ($p:ty, $a:ty) => {
         impl TemporalPrecision for $p {
             fn accumulate_impl(
                 isa: Isa,
@@ -94,13 +94,14 @@ macro_rules! float_temporal {
                 history: &mut ViewMut<'_, Self::Store>,
                 y0: usize,
             ) {
-                float::accumulate(isa, inp, params, color, history, y0)
+                float::accumulate::<_, $a>(isa, inp, params, color, history, y0)
             }
         }
     };
 }
-float_temporal!(F32);
-float_temporal!(F16);
+float_temporal!(F32, f32);
+float_temporal!(F16, f32);
+float_temporal!(F16Arith, crate::real::H);
 
 /// One accumulation step for output rows `y0 .. y0 + color.height()`.
 /// Needs either `motion` or both `position` and `prev_position`.

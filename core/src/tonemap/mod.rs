@@ -13,7 +13,7 @@
 //!   NaN maps to 0 in every tone map.
 
 use crate::error::{check_shape, Error, Result};
-use crate::precision::{sealed::Sealed, Precision, F16, F32};
+use crate::precision::{sealed::Sealed, F16Arith, Precision, F16, F32};
 use crate::view::{View, ViewMut};
 use crate::Isa;
 
@@ -94,10 +94,10 @@ pub trait TonemapPrecision: Precision + Sealed {
 }
 
 macro_rules! float_tonemap {
-    ($p:ty) => {
+    ($p:ty, $a:ty) => {
         impl TonemapPrecision for $p {
             fn map_impl(isa: Isa, op: Map, src: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>) {
-                float::map(isa, op, src, dst)
+                float::map::<_, $a>(isa, op, src, dst)
             }
             fn modulate_impl(
                 isa: Isa,
@@ -107,13 +107,14 @@ macro_rules! float_tonemap {
                 eps: f32,
                 dst: &mut ViewMut<'_, Self::Store>,
             ) {
-                float::modulate(isa, divide, src, albedo, eps, dst)
+                float::modulate::<_, $a>(isa, divide, src, albedo, eps, dst)
             }
         }
     };
 }
-float_tonemap!(F32);
-float_tonemap!(F16);
+float_tonemap!(F32, f32);
+float_tonemap!(F16, f32);
+float_tonemap!(F16Arith, crate::real::H);
 
 /// Applies `op` to every element of `src` into `dst` (same shape; they may
 /// not alias — run it in place through a copy).

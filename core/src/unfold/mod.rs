@@ -13,7 +13,7 @@
 //! registers, so each kernel plane is streamed exactly once.
 
 use crate::error::{check_scratch, check_shape, Result, Shape};
-use crate::precision::{sealed::Sealed, Precision, F16, F32};
+use crate::precision::{sealed::Sealed, F16Arith, Precision, F16, F32};
 use crate::view::{View, ViewMut};
 use crate::{check_kernel_size, Isa};
 
@@ -39,7 +39,7 @@ pub trait UnfoldPrecision: Precision + Sealed {
 }
 
 macro_rules! float_unfold {
-    ($p:ty) => {
+    ($p:ty, $a:ty) => {
         impl UnfoldPrecision for $p {
             fn scratch_len_impl(_k: usize, channels: usize, width: usize) -> usize {
                 channels.saturating_mul(width)
@@ -53,13 +53,14 @@ macro_rules! float_unfold {
                 y0: usize,
                 scratch: &mut [f32],
             ) {
-                float::run(isa, k, kernel, src, dst, y0, scratch)
+                float::run::<_, $a>(isa, k, kernel, src, dst, y0, scratch)
             }
         }
     };
 }
-float_unfold!(F32);
-float_unfold!(F16);
+float_unfold!(F32, f32);
+float_unfold!(F16, f32);
+float_unfold!(F16Arith, crate::real::H);
 
 /// Scratch words [`apply`] and [`apply_rows`] need.
 pub fn scratch_len<P: UnfoldPrecision>(k: usize, channels: usize, width: usize) -> usize {

@@ -24,7 +24,7 @@ pub(crate) unsafe fn step<S: FloatElement>(c: &Ctx<'_, '_, S>, dst: &mut ViewMut
     for yo in 0..dst.height() {
         let y = y0 + yo;
         let mut scalar_px = |x: usize, dst: &mut ViewMut<'_, S>| {
-            scalar::pixel(c, y, x, &mut out);
+            scalar::pixel::<S, f32>(c, y, x, &mut out);
             for (ch, &v) in out.iter().enumerate().take(nout) {
                 dst.row_mut(ch, yo)[x] = S::from_f32(v);
             }
@@ -113,7 +113,7 @@ fn rows<S: FloatElement>(c: &Ctx<'_, '_, S>, yy: usize) -> RowPtrs<S> {
 fn prefetch_row<S: FloatElement>(c: &Ctx<'_, '_, S>, yy: usize) {
     let r = rows(c, yy);
     let bytes = c.src.width() * core::mem::size_of::<S>();
-    let mut one = |p: *const S| {
+    let one = |p: *const S| {
         if p.is_null() {
             return;
         }

@@ -79,7 +79,7 @@ pub(crate) fn h2(dy: usize, dx: usize) -> f32 {
 }
 
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn step<S: FloatElement>(
+pub(crate) fn step<S: FloatElement, A: crate::real::Real>(
     isa: Isa,
     level: u32,
     groups: usize,
@@ -94,7 +94,7 @@ pub(crate) fn step<S: FloatElement>(
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked support.
-        Isa::Avx2 => unsafe { avx2::step(&ctx, dst, y0) },
-        _ => scalar::step(&ctx, dst, y0),
+        Isa::Avx2 if A::IS_F32 => unsafe { avx2::step(&ctx, dst, y0) },
+        _ => scalar::step::<S, A>(&ctx, dst, y0),
     }
 }

@@ -10,7 +10,7 @@ pub(crate) mod scalar;
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod avx2;
 
-pub(crate) fn forward<S: FloatElement>(
+pub(crate) fn forward<S: FloatElement, A: crate::real::Real>(
     isa: Isa,
     layer: &Conv2d<'_, S>,
     src: &View<'_, S>,
@@ -21,7 +21,7 @@ pub(crate) fn forward<S: FloatElement>(
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked support.
-        Isa::Avx2 => unsafe { avx2::forward(layer, src, dst, y0, scratch) },
-        _ => scalar::forward(layer, src, dst, y0, scratch),
+        Isa::Avx2 if A::IS_F32 => unsafe { avx2::forward(layer, src, dst, y0, scratch) },
+        _ => scalar::forward::<S, A>(layer, src, dst, y0, scratch),
     }
 }

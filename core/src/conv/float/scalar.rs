@@ -3,9 +3,10 @@
 
 use crate::conv::Conv2d;
 use crate::precision::FloatElement;
+use crate::real::Real;
 use crate::view::{View, ViewMut};
 
-pub(crate) fn forward<S: FloatElement>(
+pub(crate) fn forward<S: FloatElement, A: Real>(
     layer: &Conv2d<'_, S>,
     src: &View<'_, S>,
     dst: &mut ViewMut<'_, S>,
@@ -14,13 +15,13 @@ pub(crate) fn forward<S: FloatElement>(
 ) {
     for yo in 0..dst.height() {
         for co in 0..layer.cout {
-            row(layer, src, dst, y0, yo, co, scratch);
+            row::<S, A>(layer, src, dst, y0, yo, co, scratch);
         }
     }
 }
 
 /// Output row `yo` (image row `y0 + yo`) of channel `co`.
-pub(crate) fn row<S: FloatElement>(
+pub(crate) fn row<S: FloatElement, A: Real>(
     layer: &Conv2d<'_, S>,
     src: &View<'_, S>,
     dst: &mut ViewMut<'_, S>,
@@ -33,28 +34,28 @@ pub(crate) fn row<S: FloatElement>(
     let k = layer.k;
     let p = k / 2;
     let y = y0 + yo;
-    let acc = &mut scratch[..w];
-    acc.fill(layer.bias.map_or(0.0, |b| b[co].to_f32()));
+    let acc: &mut [A] = bytemuck::cast_slice_mut(&mut scratch[..w]);
+    acc.fill(A::of(layer.bias.map_or(0.0, |b| b[co].to_f32())));
     for ci in 0..layer.cin {
         for ky in 0..k {
             let Some(sy) = (y + ky).checked_sub(p).filter(|&v| v < h) else { continue };
             let srow = src.row(ci, sy);
             for kx in 0..k {
-                let wv = layer.weights[((co * layer.cin + ci) * k + ky) * k + kx].to_f32();
+                let wv = A::of(layer.weights[((co * layer.cin + ci) * k + ky) * k + kx].to_f32());
                 let x_lo = p.saturating_sub(kx);
                 let x_hi = (w + p).saturating_sub(kx).min(w);
                 if x_lo >= x_hi {
                     continue;
                 }
                 for (a, &s) in acc[x_lo..x_hi].iter_mut().zip(&srow[x_lo + kx - p..x_hi + kx - p]) {
-                    *a += wv * s.to_f32();
+                    *a += wv * A::of(s.to_f32());
                 }
             }
         }
     }
     let out = dst.row_mut(co, yo);
     for (o, &a) in out.iter_mut().zip(acc.iter()) {
-        *o = S::from_f32(layer.act.apply(a));
+        *o = S::from_f32(act::<A>(layer.act, a).f32());
     }
 }
 
@@ -76,4 +77,27 @@ pub(crate) fn pixel<S: FloatElement>(layer: &Conv2d<'_, S>, src: &View<'_, S>, c
         }
     }
     layer.act.apply(acc)
+}
+
+/// The activation in arithmetic `A` (same comparisons as [`crate::conv::Activation::apply`]).
+#[inline(always)]
+pub(crate) fn act<A: Real>(act: crate::conv::Activation, x: A) -> A {
+    match act {
+        crate::conv::Activation::Identity => x,
+        crate::conv::Activation::Relu => {
+            if x > A::ZERO {
+                x
+            } else {
+                A::ZERO
+            }
+        }
+        crate::conv::Activation::LeakyRelu(s) => {
+            let sx = A::of(s) * x;
+            if x > sx {
+                x
+            } else {
+                sx
+            }
+        }
+    }
 }

@@ -70,7 +70,7 @@ pub(crate) unsafe fn reduce<S: FloatElement>(op: Reduce, src: &View<'_, S>, dst:
                 xc += 8;
             }
         }
-        scalar::reduce(op, src, &mut dst.rows_mut(yo, 1), yc, vec_end);
+        scalar::reduce::<S, f32>(op, src, &mut dst.rows_mut(yo, 1), yc, vec_end);
     }
 }
 
@@ -142,6 +142,6 @@ pub(crate) unsafe fn composite<S: FloatElement>(
                 x += 16;
             }
         }
-        scalar::composite(fine, coarse, alpha, &mut dst.rows_mut(yo, 1), y, vec_end);
+        scalar::composite::<S, f32>(fine, coarse, alpha, &mut dst.rows_mut(yo, 1), y, vec_end);
     }
 }

@@ -10,25 +10,36 @@ pub(crate) mod scalar;
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod avx2;
 
-pub(crate) fn reduce<S: FloatElement>(isa: Isa, op: Reduce, src: &View<'_, S>, dst: &mut ViewMut<'_, S>, y0: usize) {
+pub(crate) fn reduce<S: FloatElement, A: crate::real::Real>(
+    isa: Isa,
+    op: Reduce,
+    src: &View<'_, S>,
+    dst: &mut ViewMut<'_, S>,
+    y0: usize,
+) {
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked support.
-        Isa::Avx2 => unsafe { avx2::reduce(op, src, dst, y0) },
-        _ => scalar::reduce(op, src, dst, y0, 0),
+        Isa::Avx2 if A::IS_F32 => unsafe { avx2::reduce(op, src, dst, y0) },
+        _ => scalar::reduce::<S, A>(op, src, dst, y0, 0),
     }
 }
 
-pub(crate) fn upsample<S: FloatElement>(isa: Isa, src: &View<'_, S>, dst: &mut ViewMut<'_, S>, y0: usize) {
+pub(crate) fn upsample<S: FloatElement, A: crate::real::Real>(
+    isa: Isa,
+    src: &View<'_, S>,
+    dst: &mut ViewMut<'_, S>,
+    y0: usize,
+) {
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked support.
-        Isa::Avx2 => unsafe { avx2::upsample(src, dst, y0) },
+        Isa::Avx2 if A::IS_F32 => unsafe { avx2::upsample(src, dst, y0) },
         _ => scalar::upsample(src, dst, y0, 0),
     }
 }
 
-pub(crate) fn composite<S: FloatElement>(
+pub(crate) fn composite<S: FloatElement, A: crate::real::Real>(
     isa: Isa,
     fine: &View<'_, S>,
     coarse: &View<'_, S>,
@@ -39,7 +50,7 @@ pub(crate) fn composite<S: FloatElement>(
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked support.
-        Isa::Avx2 => unsafe { avx2::composite(fine, coarse, alpha, dst, y0) },
-        _ => scalar::composite(fine, coarse, alpha, dst, y0, 0),
+        Isa::Avx2 if A::IS_F32 => unsafe { avx2::composite(fine, coarse, alpha, dst, y0) },
+        _ => scalar::composite::<S, A>(fine, coarse, alpha, dst, y0, 0),
     }
 }

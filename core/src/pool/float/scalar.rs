@@ -3,30 +3,20 @@
 
 use super::Reduce;
 use crate::precision::FloatElement;
+use crate::real::Real;
 use crate::view::{View, ViewMut};
-
-/// `max` with the semantics of x86 `MAXPS`: the second operand wins unless
-/// the first is strictly greater (so a NaN first operand loses).
-#[inline(always)]
-pub(crate) fn maxps(a: f32, b: f32) -> f32 {
-    if a > b {
-        a
-    } else {
-        b
-    }
-}
 
 /// The reduction of coarse cell `X` between fine rows `r0` and optional `r1`.
 #[inline(always)]
-pub(crate) fn cell<S: FloatElement>(op: Reduce, r0: &[S], r1: Option<&[S]>, xc: usize, w: usize) -> f32 {
+pub(crate) fn cell<S: FloatElement, A: Real>(op: Reduce, r0: &[S], r1: Option<&[S]>, xc: usize, w: usize) -> A {
     let x0 = 2 * xc;
     let has_right = x0 + 1 < w;
     // Column sums (or maxima) first, then across the two columns.
-    let col = |x: usize| -> f32 {
-        let a = r0[x].to_f32();
+    let col = |x: usize| -> A {
+        let a = A::of(r0[x].to_f32());
         match (op, r1) {
-            (Reduce::Mean, Some(r1)) => a + r1[x].to_f32(),
-            (Reduce::Max, Some(r1)) => maxps(r1[x].to_f32(), a),
+            (Reduce::Mean, Some(r1)) => a + A::of(r1[x].to_f32()),
+            (Reduce::Max, Some(r1)) => A::of(r1[x].to_f32()).maxps(a),
             (_, None) => a,
         }
     };
@@ -34,19 +24,19 @@ pub(crate) fn cell<S: FloatElement>(op: Reduce, r0: &[S], r1: Option<&[S]>, xc: 
     let v = if has_right {
         match op {
             Reduce::Mean => col(x0) + col(x0 + 1),
-            Reduce::Max => maxps(col(x0 + 1), col(x0)),
+            Reduce::Max => col(x0 + 1).maxps(col(x0)),
         }
     } else {
         col(x0)
     };
     match (op, n) {
-        (Reduce::Mean, 4) => v * 0.25,
-        (Reduce::Mean, 2) => v * 0.5,
+        (Reduce::Mean, 4) => v * A::of(0.25),
+        (Reduce::Mean, 2) => v * A::of(0.5),
         _ => v,
     }
 }
 
-pub(crate) fn reduce<S: FloatElement>(
+pub(crate) fn reduce<S: FloatElement, A: Real>(
     op: Reduce,
     src: &View<'_, S>,
     dst: &mut ViewMut<'_, S>,
@@ -61,7 +51,7 @@ pub(crate) fn reduce<S: FloatElement>(
             let r1 = (2 * yc + 1 < h).then(|| src.row(c, 2 * yc + 1));
             let out = dst.row_mut(c, yo);
             for (xc, o) in out.iter_mut().enumerate().skip(x_from) {
-                *o = S::from_f32(cell(op, r0, r1, xc, w));
+                *o = S::from_f32(cell::<S, A>(op, r0, r1, xc, w).f32());
             }
         }
     }
@@ -79,7 +69,7 @@ pub(crate) fn upsample<S: FloatElement>(src: &View<'_, S>, dst: &mut ViewMut<'_,
     }
 }
 
-pub(crate) fn composite<S: FloatElement>(
+pub(crate) fn composite<S: FloatElement, A: Real>(
     fine: &View<'_, S>,
     coarse: &View<'_, S>,
     alpha: &View<'_, S>,
@@ -100,8 +90,8 @@ pub(crate) fn composite<S: FloatElement>(
             let a = alpha.row(if per_channel_alpha { c } else { 0 }, y);
             let out = dst.row_mut(c, yo);
             for x in x_from..w {
-                let d = crow[x / 2].to_f32() - cell(Reduce::Mean, r0, r1, x / 2, w);
-                out[x] = S::from_f32(f[x].to_f32() + a[x].to_f32() * d);
+                let d = A::of(crow[x / 2].to_f32()) - cell::<S, A>(Reduce::Mean, r0, r1, x / 2, w);
+                out[x] = S::from_f32((A::of(f[x].to_f32()) + A::of(a[x].to_f32()) * d).f32());
             }
         }
     }

@@ -105,7 +105,7 @@ fn alphas<S: FloatElement>(f: &View<'_, S>, y: usize, x0: usize, n: usize, out: 
     }
     let mut a = [0.0f32; MAX_FUSED];
     for x in x..n {
-        super::alpha_pixel(f, y, x0 + x, &mut a);
+        super::alpha_pixel::<S, f32>(f, y, x0 + x, &mut a);
         for i in 0..m {
             out[i * stride + x] = a[i];
         }
@@ -130,7 +130,7 @@ fn finish<S: FloatElement>(acc: &[f32], albedo: Option<&[S]>, out: &mut [S]) {
         }
         x += 8;
     }
-    ScalarOps.finish(&acc[x..n], albedo.map(|a| &a[x..n]), &mut out[x..n]);
+    ScalarOps::<f32>::new().finish(&acc[x..n], albedo.map(|a| &a[x..n]), &mut out[x..n]);
 }
 
 #[target_feature(enable = "avx2,fma,f16c")]
@@ -344,7 +344,7 @@ fn horizontal_accumulate(
     any_tiny
 }
 
-impl Ops for Avx2Ops {
+impl Ops<f32> for Avx2Ops {
     fn row_max<S: FloatElement>(&self, row: &[S]) -> f32 {
         // SAFETY: Avx2Ops exists only when AVX2/FMA/F16C are supported.
         unsafe { row_max(row) }
@@ -417,7 +417,7 @@ pub(crate) unsafe fn direct<S: FloatElement>(inp: &FusedInputs<'_, S>, dst: &mut
         while x < w {
             let interior = y >= rmax && y + rmax < h && x >= rmax && x + 8 + rmax <= w;
             if !interior {
-                let v = scalar::fused_pixel(inp, y, x);
+                let v = scalar::fused_pixel::<S, f32>(inp, y, x);
                 for (c, &vc) in v.iter().enumerate().take(ch) {
                     dst.row_mut(c, yo)[x] = S::from_f32(vc);
                 }
@@ -487,7 +487,7 @@ pub(crate) unsafe fn kernels<S: FloatElement>(k: usize, logits: &View<'_, S>, ds
         while x < w {
             let interior = y >= r && y + r < h && x >= r && x + 8 + r <= w;
             if !interior {
-                scalar::kernel_pixel(k, logits, y, x, &mut wbuf);
+                scalar::kernel_pixel::<S, f32>(k, logits, y, x, &mut wbuf);
                 for (j, &v) in wbuf[..k * k].iter().enumerate() {
                     dst.row_mut(j, yo)[x] = S::from_f32(v);
                 }
@@ -550,7 +550,7 @@ pub(crate) unsafe fn channel<S: FloatElement>(src: &View<'_, S>, dst: &mut ViewM
             x += 8;
         }
         for xx in x..w {
-            scalar::channel_at(src, dst, y, xx);
+            scalar::channel_at::<S, f32>(src, dst, y, xx);
         }
     }
 }

@@ -6,8 +6,9 @@
 //! sequence of IEEE operations in every implementation, so the paths differ
 //! only in the `exp` polynomial's FMA rounding.
 
-use super::{clamp_logit, FusedInputs, WindowPath, MAX_CHANNELS, MAX_FUSED, TINY_DENOMINATOR};
+use super::{clamp_logit, FusedInputs, WindowPath, MAX_CHANNELS, MAX_FUSED};
 use crate::precision::FloatElement;
+use crate::real::Real;
 use crate::view::{View, ViewMut};
 use crate::Isa;
 
@@ -24,7 +25,7 @@ pub(crate) const TILE_W: usize = 256;
 /// Row loops of the box-sum path. Rows of the carried block are stored
 /// plane-interleaved: row `t` is `np` consecutive planes of `len` values
 /// (`np = 1 + channels`: the weight sum, then one weighted channel each).
-pub(crate) trait Ops {
+pub(crate) trait Ops<A: Real> {
     /// Maximum of a row of logits, NaN skipped (`-inf` when empty or all NaN).
     fn row_max<S: FloatElement>(&self, row: &[S]) -> f32;
     /// One carried row: `e = exp(clamp(l) - shift)` and `e * r_c` at columns
@@ -35,16 +36,16 @@ pub(crate) trait Ops {
         &self,
         l: Option<&[S]>,
         rad: &[&[S]],
-        shift: f32,
+        shift: A,
         u0: usize,
         u1: usize,
-        a: &mut [f32],
-        p_prev: Option<&[f32]>,
-        p: &mut [f32],
+        a: &mut [A],
+        p_prev: Option<&[A]>,
+        p: &mut [A],
     );
     /// Block suffix in place, `a = a (+ a_next)`, and when `v` is given the
     /// vertical window sum `v = a (+ p_win)`.
-    fn backward_row(&self, a: &mut [f32], a_next: Option<&[f32]>, p_win: Option<&[f32]>, v: Option<&mut [f32]>);
+    fn backward_row(&self, a: &mut [A], a_next: Option<&[A]>, p_win: Option<&[A]>, v: Option<&mut [A]>);
     /// Horizontal window sums of the `np` planes of `v` (power-of-two
     /// doubling, see [`scalar::box_levels`]) for the `tw` output columns, then
     /// for every column with `den >= TINY`: `acc_c += num_c * (alpha / den)`.
@@ -52,20 +53,20 @@ pub(crate) trait Ops {
     #[allow(clippy::too_many_arguments)]
     fn horizontal_accumulate(
         &self,
-        v: &[f32],
+        v: &[A],
         np: usize,
         k: usize,
-        alpha: &[f32],
-        acc: &mut [f32],
+        alpha: &[A],
+        acc: &mut [A],
         acc_plane: usize,
-        den: &mut [f32],
-        lv: &mut [f32],
+        den: &mut [A],
+        lv: &mut [A],
     ) -> bool;
     /// Softmax over the fusion planes at columns `x0 .. x0 + n` of row `y`:
     /// `out[i * stride + x] = alpha_i` for `x < n`.
-    fn alphas<S: FloatElement>(&self, f: &View<'_, S>, y: usize, x0: usize, n: usize, out: &mut [f32], stride: usize);
+    fn alphas<S: FloatElement>(&self, f: &View<'_, S>, y: usize, x0: usize, n: usize, out: &mut [A], stride: usize);
     /// `out = from_f32(acc * albedo)` (albedo optional).
-    fn finish<S: FloatElement>(&self, acc: &[f32], albedo: Option<&[S]>, out: &mut [S]);
+    fn finish<S: FloatElement>(&self, acc: &[A], albedo: Option<&[S]>, out: &mut [S]);
     /// Hints that `row` will be read soon (tiles read many short row pieces,
     /// too short for the hardware prefetchers to ramp up on).
     fn prefetch<S: FloatElement>(&self, _row: &[S]) {}
@@ -103,8 +104,21 @@ pub(crate) fn fused<S: FloatElement>(
             let ops = unsafe { avx2::Avx2Ops::new() };
             boxsum(&ops, inp, dst, y0, scratch)
         }
-        (_, WindowPath::Direct) => scalar::direct(inp, dst, y0),
-        (_, WindowPath::BoxSum) => boxsum(&scalar::ScalarOps, inp, dst, y0, scratch),
+        _ => fused_scalar::<S, f32>(path, inp, dst, y0, scratch),
+    }
+}
+
+/// The portable paths in arithmetic `A` (f32, or f16-rounded).
+pub(crate) fn fused_scalar<S: FloatElement, A: Real>(
+    path: WindowPath,
+    inp: &FusedInputs<'_, S>,
+    dst: &mut ViewMut<'_, S>,
+    y0: usize,
+    scratch: &mut [f32],
+) {
+    match path {
+        WindowPath::Direct => scalar::direct::<S, A>(inp, dst, y0),
+        WindowPath::BoxSum => boxsum(&scalar::ScalarOps::<A>::new(), inp, dst, y0, bytemuck::cast_slice_mut(scratch)),
     }
 }
 
@@ -113,7 +127,7 @@ pub(crate) fn kernels<S: FloatElement>(isa: Isa, k: usize, logits: &View<'_, S>,
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked support.
         Isa::Avx2 => unsafe { avx2::kernels(k, logits, dst, y0) },
-        _ => scalar::kernels(k, logits, dst, y0),
+        _ => scalar::kernels::<S, f32>(k, logits, dst, y0),
     }
 }
 
@@ -122,21 +136,21 @@ pub(crate) fn channel<S: FloatElement>(isa: Isa, src: &View<'_, S>, dst: &mut Vi
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked support.
         Isa::Avx2 => unsafe { avx2::channel(src, dst) },
-        _ => scalar::channel(src, dst),
+        _ => scalar::channel::<S, f32>(src, dst),
     }
 }
 
 /// The direct window sum of size `k` at pixel `(y, x)` with the window's own
 /// max shift: writes `R_c` for `c < channels` into `out`. Rows then columns
 /// ascending, out-of-image taps skipped.
-pub(crate) fn direct_pixel<S: FloatElement>(
+pub(crate) fn direct_pixel<S: FloatElement, A: Real>(
     k: usize,
     logits: &View<'_, S>,
     plane: usize,
     radiance: &View<'_, S>,
     y: usize,
     x: usize,
-    out: &mut [f32; MAX_CHANNELS],
+    out: &mut [A; MAX_CHANNELS],
 ) {
     let (w, h) = (radiance.width(), radiance.height());
     let r = k / 2;
@@ -150,16 +164,17 @@ pub(crate) fn direct_pixel<S: FloatElement>(
             m = m.max(clamp_logit(l.to_f32()));
         }
     }
+    let m = A::of(m);
     let ch = radiance.channels();
-    let mut den = 0.0f32;
-    let mut num = [0.0f32; MAX_CHANNELS];
+    let mut den = A::ZERO;
+    let mut num = [A::ZERO; MAX_CHANNELS];
     for yy in ylo..yhi {
         let lrow = logits.row(plane, yy);
         for xx in xlo..xhi {
-            let e = crate::math::scalar::exp(clamp_logit(lrow[xx].to_f32()) - m);
+            let e = (A::of(clamp_logit(lrow[xx].to_f32())) - m).exp();
             den += e;
             for (c, n) in num.iter_mut().enumerate().take(ch) {
-                *n += e * radiance.at(c, yy, xx).to_f32();
+                *n += e * A::of(radiance.at(c, yy, xx).to_f32());
             }
         }
     }
@@ -170,18 +185,19 @@ pub(crate) fn direct_pixel<S: FloatElement>(
 }
 
 /// Fusion weights at one pixel: softmax over the `m` planes of `f`, max-shifted.
-pub(crate) fn alpha_pixel<S: FloatElement>(f: &View<'_, S>, y: usize, x: usize, out: &mut [f32; MAX_FUSED]) {
+pub(crate) fn alpha_pixel<S: FloatElement, A: Real>(f: &View<'_, S>, y: usize, x: usize, out: &mut [A; MAX_FUSED]) {
     let m = f.channels();
     let mut mx = f32::NEG_INFINITY;
     for i in 0..m {
         mx = mx.max(clamp_logit(f.at(i, y, x).to_f32()));
     }
-    let mut sum = 0.0f32;
+    let mx = A::of(mx);
+    let mut sum = A::ZERO;
     for (i, o) in out.iter_mut().enumerate().take(m) {
-        *o = crate::math::scalar::exp(clamp_logit(f.at(i, y, x).to_f32()) - mx);
+        *o = (A::of(clamp_logit(f.at(i, y, x).to_f32())) - mx).exp();
         sum += *o;
     }
-    let inv = 1.0 / sum;
+    let inv = A::ONE / sum;
     for o in out.iter_mut().take(m) {
         *o *= inv;
     }
@@ -193,12 +209,12 @@ pub(crate) fn alpha_pixel<S: FloatElement>(f: &View<'_, S>, y: usize, x: usize, 
 /// rows is asked for; the vertical blocks start on absolute multiples of `k`.
 /// So every output value depends only on its position, never on how the rows
 /// were split into bands (the host's threads give bit-identical results).
-fn boxsum<S: FloatElement, O: Ops>(
+fn boxsum<S: FloatElement, A: Real, O: Ops<A>>(
     o: &O,
     inp: &FusedInputs<'_, S>,
     dst: &mut ViewMut<'_, S>,
     y0: usize,
-    scratch: &mut [f32],
+    scratch: &mut [A],
 ) {
     let w = inp.radiance.width();
     let y_end = y0 + dst.height();
@@ -228,7 +244,7 @@ fn block_start(a: isize, k: usize) -> isize {
 /// `th` window rows that are output are then summed horizontally, straight
 /// into the accumulators.
 #[allow(clippy::too_many_arguments)]
-fn tile<S: FloatElement, O: Ops>(
+fn tile<S: FloatElement, A: Real, O: Ops<A>>(
     o: &O,
     inp: &FusedInputs<'_, S>,
     dst: &mut ViewMut<'_, S>,
@@ -238,7 +254,7 @@ fn tile<S: FloatElement, O: Ops>(
     th: usize,
     tx: usize,
     tw: usize,
-    scratch: &mut [f32],
+    scratch: &mut [A],
 ) {
     let rad = &inp.radiance;
     let imp = &inp.importance;
@@ -255,7 +271,7 @@ fn tile<S: FloatElement, O: Ops>(
     let (v_buf, rest) = rest.split_at_mut(np * lmax);
     let (den, rest) = rest.split_at_mut(tw);
     let lv = &mut rest[..3 * np * lmax];
-    acc.fill(0.0);
+    acc.fill(A::ZERO);
     match &inp.fusion {
         Some(f) => {
             for t in 0..th {
@@ -267,7 +283,7 @@ fn tile<S: FloatElement, O: Ops>(
                 o.alphas(f, ytop + t, tx, tw, &mut alpha[t * tw..], th * tw);
             }
         }
-        None => alpha[..th * tw].fill(1.0),
+        None => alpha[..th * tw].fill(A::ONE),
     }
     for (i, &k) in inp.sizes.iter().enumerate() {
         let r = k / 2;
@@ -287,7 +303,7 @@ fn tile<S: FloatElement, O: Ops>(
         for yy in sy0..sy1 {
             shift = shift.max(o.row_max(&imp.row(i, yy)[xs..xe]));
         }
-        let shift = clamp_logit(shift);
+        let shift = A::of(clamp_logit(shift));
 
         // Carried rows: from the start of the block holding the first window's
         // top row to the last window's bottom row.
@@ -335,10 +351,10 @@ fn tile<S: FloatElement, O: Ops>(
             let any_tiny = o.horizontal_accumulate(&v_buf[..row], np, k, arow, &mut acc[ot * tw..], th * tw, den, lv);
             if any_tiny {
                 for x in 0..tw {
-                    if den[x] >= TINY_DENOMINATOR {
+                    if den[x] >= A::TINY {
                         continue;
                     }
-                    let mut rr = [0.0f32; MAX_CHANNELS];
+                    let mut rr = [A::ZERO; MAX_CHANNELS];
                     direct_pixel(k, imp, i, rad, ytop + ot, tx + x, &mut rr);
                     for c in 0..ch {
                         acc[(c * th + ot) * tw + x] += rr[c] * arow[x];

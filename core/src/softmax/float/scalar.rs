@@ -1,18 +1,28 @@
-//! Portable row loops and per-pixel paths of the softmax operators.
+//! Portable row loops and per-pixel paths of the softmax operators, generic
+//! over the arithmetic `A` (f32, or f16-rounded for the f16-arithmetic
+//! precision).
+
+use core::marker::PhantomData;
 
 use super::{alpha_pixel, direct_pixel, Ops};
-use crate::math::scalar::exp;
 use crate::precision::FloatElement;
-use crate::softmax::{clamp_logit, FusedInputs, MAX_CHANNELS, MAX_FUSED, TINY_DENOMINATOR};
+use crate::real::Real;
+use crate::softmax::{clamp_logit, FusedInputs, MAX_CHANNELS, MAX_FUSED};
 use crate::view::{View, ViewMut};
 
-/// The scalar [`Ops`].
-pub(crate) struct ScalarOps;
+/// The scalar [`Ops`] in arithmetic `A`.
+pub(crate) struct ScalarOps<A>(PhantomData<A>);
+
+impl<A> ScalarOps<A> {
+    pub(crate) fn new() -> Self {
+        ScalarOps(PhantomData)
+    }
+}
 
 /// The power-of-two levels of one plane `v`: `s2[i] = v[i] + v[i + 1]`,
 /// `s4[i] = s2[i] + s2[i + 2]`, `s8[i] = s4[i] + s4[i + 4]`, each over every
 /// index it is defined at (only the levels `k` needs).
-pub(crate) fn box_levels(v: &[f32], k: usize, lv: &mut [f32]) {
+pub(crate) fn box_levels<A: Real>(v: &[A], k: usize, lv: &mut [A]) {
     let len = v.len();
     let (s2, rest) = lv.split_at_mut(len);
     let (s4, s8) = rest.split_at_mut(len);
@@ -37,9 +47,9 @@ pub(crate) fn box_levels(v: &[f32], k: usize, lv: &mut [f32]) {
 /// binary expansion from the largest down, left to right
 /// (`k = 13`: `(s8[x] + s4[x + 8]) + v[x + 12]`).
 #[inline(always)]
-pub(crate) fn box_at(v: &[f32], lv: &[f32], k: usize, x: usize) -> f32 {
+pub(crate) fn box_at<A: Real>(v: &[A], lv: &[A], k: usize, x: usize) -> A {
     let len = v.len();
-    let mut acc = None::<f32>;
+    let mut acc = None::<A>;
     let mut off = 0;
     for (bit, base) in [(8usize, 2 * len), (4, len), (2, 0)] {
         if k & bit != 0 {
@@ -52,7 +62,7 @@ pub(crate) fn box_at(v: &[f32], lv: &[f32], k: usize, x: usize) -> f32 {
     acc.map_or(t, |a| a + t)
 }
 
-impl Ops for ScalarOps {
+impl<A: Real> Ops<A> for ScalarOps<A> {
     fn row_max<S: FloatElement>(&self, row: &[S]) -> f32 {
         row.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v.to_f32()))
     }
@@ -61,22 +71,22 @@ impl Ops for ScalarOps {
         &self,
         l: Option<&[S]>,
         rad: &[&[S]],
-        shift: f32,
+        shift: A,
         u0: usize,
         u1: usize,
-        a: &mut [f32],
-        p_prev: Option<&[f32]>,
-        p: &mut [f32],
+        a: &mut [A],
+        p_prev: Option<&[A]>,
+        p: &mut [A],
     ) {
         let np = 1 + rad.len();
         let len = a.len() / np;
         for u in 0..len {
-            let mut vals = [0.0f32; 1 + MAX_CHANNELS];
+            let mut vals = [A::ZERO; 1 + MAX_CHANNELS];
             if let Some(l) = l.filter(|_| u >= u0 && u < u1) {
-                let e = exp(clamp_logit(l[u - u0].to_f32()) - shift);
+                let e = (A::of(clamp_logit(l[u - u0].to_f32())) - shift).exp();
                 vals[0] = e;
                 for (c, r) in rad.iter().enumerate() {
-                    vals[1 + c] = e * r[u - u0].to_f32();
+                    vals[1 + c] = e * A::of(r[u - u0].to_f32());
                 }
             }
             for q in 0..np {
@@ -90,7 +100,7 @@ impl Ops for ScalarOps {
         }
     }
 
-    fn backward_row(&self, a: &mut [f32], a_next: Option<&[f32]>, p_win: Option<&[f32]>, mut v: Option<&mut [f32]>) {
+    fn backward_row(&self, a: &mut [A], a_next: Option<&[A]>, p_win: Option<&[A]>, mut v: Option<&mut [A]>) {
         for i in 0..a.len() {
             let s = match a_next {
                 Some(n) => a[i] + n[i],
@@ -108,14 +118,14 @@ impl Ops for ScalarOps {
 
     fn horizontal_accumulate(
         &self,
-        v: &[f32],
+        v: &[A],
         np: usize,
         k: usize,
-        alpha: &[f32],
-        acc: &mut [f32],
+        alpha: &[A],
+        acc: &mut [A],
         acc_plane: usize,
-        den: &mut [f32],
-        lv: &mut [f32],
+        den: &mut [A],
+        lv: &mut [A],
     ) -> bool {
         let len = v.len() / np;
         let tw = alpha.len();
@@ -126,7 +136,7 @@ impl Ops for ScalarOps {
         for x in 0..tw {
             let d = box_at(&v[..len], &lv[..3 * len], k, x);
             den[x] = d;
-            if d >= TINY_DENOMINATOR {
+            if d >= A::TINY {
                 let inv = alpha[x] / d;
                 for q in 1..np {
                     let num = box_at(&v[q * len..(q + 1) * len], &lv[3 * q * len..3 * (q + 1) * len], k, x);
@@ -139,9 +149,9 @@ impl Ops for ScalarOps {
         any_tiny
     }
 
-    fn alphas<S: FloatElement>(&self, f: &View<'_, S>, y: usize, x0: usize, n: usize, out: &mut [f32], stride: usize) {
+    fn alphas<S: FloatElement>(&self, f: &View<'_, S>, y: usize, x0: usize, n: usize, out: &mut [A], stride: usize) {
         let m = f.channels();
-        let mut a = [0.0f32; MAX_FUSED];
+        let mut a = [A::ZERO; MAX_FUSED];
         for x in 0..n {
             alpha_pixel(f, y, x0 + x, &mut a);
             for i in 0..m {
@@ -150,16 +160,16 @@ impl Ops for ScalarOps {
         }
     }
 
-    fn finish<S: FloatElement>(&self, acc: &[f32], albedo: Option<&[S]>, out: &mut [S]) {
+    fn finish<S: FloatElement>(&self, acc: &[A], albedo: Option<&[S]>, out: &mut [S]) {
         match albedo {
             Some(al) => {
                 for ((o, &a), &b) in out.iter_mut().zip(acc).zip(al) {
-                    *o = S::from_f32(a * b.to_f32());
+                    *o = S::from_f32((a * A::of(b.to_f32())).f32());
                 }
             }
             None => {
                 for (o, &a) in out.iter_mut().zip(acc) {
-                    *o = S::from_f32(a);
+                    *o = S::from_f32(a.f32());
                 }
             }
         }
@@ -167,15 +177,15 @@ impl Ops for ScalarOps {
 }
 
 /// The fused filter at one pixel with window-local shifts.
-pub(crate) fn fused_pixel<S: FloatElement>(inp: &FusedInputs<'_, S>, y: usize, x: usize) -> [f32; MAX_CHANNELS] {
+pub(crate) fn fused_pixel<S: FloatElement, A: Real>(inp: &FusedInputs<'_, S>, y: usize, x: usize) -> [A; MAX_CHANNELS] {
     let ch = inp.radiance.channels();
-    let mut alpha = [1.0f32; MAX_FUSED];
+    let mut alpha = [A::ONE; MAX_FUSED];
     if let Some(f) = &inp.fusion {
         alpha_pixel(f, y, x, &mut alpha);
     }
-    let mut acc = [0.0f32; MAX_CHANNELS];
+    let mut acc = [A::ZERO; MAX_CHANNELS];
     for (i, &k) in inp.sizes.iter().enumerate() {
-        let mut rr = [0.0f32; MAX_CHANNELS];
+        let mut rr = [A::ZERO; MAX_CHANNELS];
         direct_pixel(k, &inp.importance, i, &inp.radiance, y, x, &mut rr);
         for c in 0..ch {
             acc[c] += rr[c] * alpha[i];
@@ -183,20 +193,20 @@ pub(crate) fn fused_pixel<S: FloatElement>(inp: &FusedInputs<'_, S>, y: usize, x
     }
     if let Some(al) = &inp.albedo {
         for (c, a) in acc.iter_mut().enumerate().take(ch) {
-            *a *= al.at(c, y, x).to_f32();
+            *a *= A::of(al.at(c, y, x).to_f32());
         }
     }
     acc
 }
 
 /// The direct path over a band of output rows.
-pub(crate) fn direct<S: FloatElement>(inp: &FusedInputs<'_, S>, dst: &mut ViewMut<'_, S>, y0: usize) {
+pub(crate) fn direct<S: FloatElement, A: Real>(inp: &FusedInputs<'_, S>, dst: &mut ViewMut<'_, S>, y0: usize) {
     let ch = inp.radiance.channels();
     for yo in 0..dst.height() {
         for x in 0..dst.width() {
-            let v = fused_pixel(inp, y0 + yo, x);
+            let v = fused_pixel::<S, A>(inp, y0 + yo, x);
             for (c, &vc) in v.iter().enumerate().take(ch) {
-                dst.row_mut(c, yo)[x] = S::from_f32(vc);
+                dst.row_mut(c, yo)[x] = S::from_f32(vc.f32());
             }
         }
     }
@@ -204,7 +214,7 @@ pub(crate) fn direct<S: FloatElement>(inp: &FusedInputs<'_, S>, dst: &mut ViewMu
 
 /// The weights of the window of size `k` around `(y, x)`, tap `j` into `w[j]`
 /// (0 for out-of-image taps).
-pub(crate) fn kernel_pixel<S: FloatElement>(k: usize, logits: &View<'_, S>, y: usize, x: usize, w: &mut [f32]) {
+pub(crate) fn kernel_pixel<S: FloatElement, A: Real>(k: usize, logits: &View<'_, S>, y: usize, x: usize, w: &mut [A]) {
     let (wd, h) = (logits.width(), logits.height());
     let r = k / 2;
     let inside = |yy: usize, xx: usize| {
@@ -220,59 +230,61 @@ pub(crate) fn kernel_pixel<S: FloatElement>(k: usize, logits: &View<'_, S>, y: u
             }
         }
     }
-    let mut den = 0.0f32;
+    let m = A::of(m);
+    let mut den = A::ZERO;
     for ky in 0..k {
         for kx in 0..k {
             let e = match inside(ky, kx) {
-                Some((sy, sx)) => exp(clamp_logit(logits.at(0, sy, sx).to_f32()) - m),
-                None => 0.0,
+                Some((sy, sx)) => (A::of(clamp_logit(logits.at(0, sy, sx).to_f32())) - m).exp(),
+                None => A::ZERO,
             };
             w[ky * k + kx] = e;
             den += e;
         }
     }
-    let inv = 1.0 / den;
+    let inv = A::ONE / den;
     for v in w[..k * k].iter_mut() {
         *v *= inv;
     }
 }
 
 /// Materialised kernels, pixel by pixel.
-pub(crate) fn kernels<S: FloatElement>(k: usize, logits: &View<'_, S>, dst: &mut ViewMut<'_, S>, y0: usize) {
-    let mut w = [0.0f32; 15 * 15];
+pub(crate) fn kernels<S: FloatElement, A: Real>(k: usize, logits: &View<'_, S>, dst: &mut ViewMut<'_, S>, y0: usize) {
+    let mut w = [A::ZERO; 15 * 15];
     for yo in 0..dst.height() {
         for x in 0..dst.width() {
             kernel_pixel(k, logits, y0 + yo, x, &mut w);
             for (j, &v) in w[..k * k].iter().enumerate() {
-                dst.row_mut(j, yo)[x] = S::from_f32(v);
+                dst.row_mut(j, yo)[x] = S::from_f32(v.f32());
             }
         }
     }
 }
 
 /// Channel softmax at pixel `(y, x)`: max pass, exp-and-sum pass, scale pass.
-pub(crate) fn channel_at<S: FloatElement>(src: &View<'_, S>, dst: &mut ViewMut<'_, S>, y: usize, x: usize) {
+pub(crate) fn channel_at<S: FloatElement, A: Real>(src: &View<'_, S>, dst: &mut ViewMut<'_, S>, y: usize, x: usize) {
     let n = src.channels();
     let mut m = f32::NEG_INFINITY;
     for c in 0..n {
         m = m.max(clamp_logit(src.at(c, y, x).to_f32()));
     }
-    let mut sum = 0.0f32;
+    let m = A::of(m);
+    let mut sum = A::ZERO;
     for c in 0..n {
-        sum += exp(clamp_logit(src.at(c, y, x).to_f32()) - m);
+        sum += (A::of(clamp_logit(src.at(c, y, x).to_f32())) - m).exp();
     }
-    let inv = 1.0 / sum;
+    let inv = A::ONE / sum;
     for c in 0..n {
-        let e = exp(clamp_logit(src.at(c, y, x).to_f32()) - m);
-        dst.row_mut(c, y)[x] = S::from_f32(e * inv);
+        let e = (A::of(clamp_logit(src.at(c, y, x).to_f32())) - m).exp();
+        dst.row_mut(c, y)[x] = S::from_f32((e * inv).f32());
     }
 }
 
 /// Channel softmax, pixel by pixel (any channel count).
-pub(crate) fn channel<S: FloatElement>(src: &View<'_, S>, dst: &mut ViewMut<'_, S>) {
+pub(crate) fn channel<S: FloatElement, A: Real>(src: &View<'_, S>, dst: &mut ViewMut<'_, S>) {
     for y in 0..src.height() {
         for x in 0..src.width() {
-            channel_at(src, dst, y, x);
+            channel_at::<S, A>(src, dst, y, x);
         }
     }
 }

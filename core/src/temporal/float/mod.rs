@@ -4,26 +4,27 @@
 
 use super::{TemporalInputs, TemporalParams};
 use crate::precision::FloatElement;
+use crate::real::Real;
 use crate::view::{View, ViewMut};
 use crate::Isa;
 
 const MAX_C: usize = 4;
 
-fn get<S: FloatElement>(v: &View<'_, S>, c: usize, y: usize, x: usize) -> f32 {
-    v.at(c, y, x).to_f32()
+fn get<S: FloatElement, A: Real>(v: &View<'_, S>, c: usize, y: usize, x: usize) -> A {
+    A::of(v.at(c, y, x).to_f32())
 }
 
-fn dist2<S: FloatElement>(a: &View<'_, S>, ya: usize, xa: usize, b: &View<'_, S>, yb: usize, xb: usize) -> f32 {
-    let mut d = 0.0;
+fn dist2<S: FloatElement, A: Real>(a: &View<'_, S>, ya: usize, xa: usize, b: &View<'_, S>, yb: usize, xb: usize) -> A {
+    let mut d = A::ZERO;
     for c in 0..3 {
-        let t = get(a, c, ya, xa) - get(b, c, yb, xb);
+        let t = get::<S, A>(a, c, ya, xa) - get::<S, A>(b, c, yb, xb);
         d += t * t;
     }
     d
 }
 
 /// Whether previous pixel `(py, px)` may stand for current pixel `(y, x)`.
-fn agrees<S: FloatElement>(
+fn agrees<S: FloatElement, A: Real>(
     inp: &TemporalInputs<'_, S>,
     p: &TemporalParams,
     y: usize,
@@ -33,19 +34,19 @@ fn agrees<S: FloatElement>(
 ) -> bool {
     if let (Some(a), Some(b)) = (&inp.position, &inp.prev_position) {
         // `!(d < limit)` rejects NaN distances too.
-        if !(dist2(a, y, x, b, py, px) < p.pos_limit * p.pos_limit) {
+        if !(dist2::<S, A>(a, y, x, b, py, px) < A::of(p.pos_limit) * A::of(p.pos_limit)) {
             return false;
         }
     }
     if let (Some(a), Some(b)) = (&inp.normal, &inp.prev_normal) {
-        if !(dist2(a, y, x, b, py, px) < p.normal_limit * p.normal_limit) {
+        if !(dist2::<S, A>(a, y, x, b, py, px) < A::of(p.normal_limit) * A::of(p.normal_limit)) {
             return false;
         }
     }
     true
 }
 
-pub(crate) fn accumulate<S: FloatElement>(
+pub(crate) fn accumulate<S: FloatElement, A: Real>(
     _isa: Isa,
     inp: &TemporalInputs<'_, S>,
     p: &TemporalParams,
@@ -59,18 +60,18 @@ pub(crate) fn accumulate<S: FloatElement>(
         let y = y0 + yo;
         for x in 0..w {
             // Gather the reprojected colour and history.
-            let mut wsum = 0.0f32;
-            let mut hist = 0.0f32;
-            let mut prev = [0.0f32; MAX_C];
-            let mut take = |py: usize, px: usize, wt: f32| {
+            let mut wsum = A::ZERO;
+            let mut hist = A::ZERO;
+            let mut prev = [A::ZERO; MAX_C];
+            let mut take = |py: usize, px: usize, wt: A| {
                 wsum += wt;
-                hist += wt * get(&inp.prev_history, 0, py, px);
+                hist += wt * get::<S, A>(&inp.prev_history, 0, py, px);
                 for (c, pv) in prev.iter_mut().enumerate().take(chm) {
-                    *pv += wt * get(&inp.prev_color, c, py, px);
+                    *pv += wt * get::<S, A>(&inp.prev_color, c, py, px);
                 }
             };
             if let Some(m) = &inp.motion {
-                let (mx, my) = (get(m, 0, y, x), get(m, 1, y, x));
+                let (mx, my): (f32, f32) = (get::<S, f32>(m, 0, y, x), get::<S, f32>(m, 1, y, x));
                 // Previous position of the pixel centre, in pixel units.
                 let fx = x as f32 + 0.5 + mx - 0.5;
                 let fy = y as f32 + 0.5 + my - 0.5;
@@ -81,12 +82,12 @@ pub(crate) fn accumulate<S: FloatElement>(
                     for (dy, wy) in [(0isize, 1.0 - ty), (1, ty)] {
                         for (dx, wx) in [(0isize, 1.0 - tx), (1, tx)] {
                             let (py, px) = (y0i + dy, x0 + dx);
-                            let wt = wx * wy;
-                            if wt <= 0.0 || py < 0 || px < 0 || py as usize >= h || px as usize >= w {
+                            let wt = A::of(wx) * A::of(wy);
+                            if wt <= A::ZERO || py < 0 || px < 0 || py as usize >= h || px as usize >= w {
                                 continue;
                             }
                             let (py, px) = (py as usize, px as usize);
-                            if agrees(inp, p, y, x, py, px) {
+                            if agrees::<S, A>(inp, p, y, x, py, px) {
                                 take(py, px, wt);
                             }
                         }
@@ -95,35 +96,37 @@ pub(crate) fn accumulate<S: FloatElement>(
             } else if let (Some(a), Some(b)) = (&inp.position, &inp.prev_position) {
                 // Reprojection by world position: the closest previous position nearby.
                 let r = p.search_radius;
-                let mut best: Option<(f32, usize, usize)> = None;
+                let mut best: Option<(A, usize, usize)> = None;
                 for py in y.saturating_sub(r)..(y + r + 1).min(h) {
                     for px in x.saturating_sub(r)..(x + r + 1).min(w) {
-                        let d = dist2(a, y, x, b, py, px);
-                        if d.is_finite() && best.is_none_or(|(bd, _, _)| d < bd) {
+                        let d = dist2::<S, A>(a, y, x, b, py, px);
+                        if d.f32().is_finite() && best.is_none_or(|(bd, _, _)| d < bd) {
                             best = Some((d, py, px));
                         }
                     }
                 }
                 if let Some((_, py, px)) = best {
-                    if agrees(inp, p, y, x, py, px) {
-                        take(py, px, 1.0);
+                    if agrees::<S, A>(inp, p, y, x, py, px) {
+                        take(py, px, A::ONE);
                     }
                 }
             }
-            let cur = |c: usize| get(&inp.color, c, y, x);
-            if wsum > 0.0 {
-                let inv = 1.0 / wsum;
-                let n = (hist * inv).max(0.0);
-                let alpha = (1.0 / (n + 1.0)).max(p.alpha_min);
+            let cur = |c: usize| get::<S, A>(&inp.color, c, y, x);
+            if wsum > A::ZERO {
+                let inv = A::ONE / wsum;
+                let n = (hist * inv).fmax(A::ZERO);
+                let alpha = (A::ONE / (n + A::ONE)).fmax(A::of(p.alpha_min));
                 for c in 0..ch {
                     let pv = if c < chm { prev[c] * inv } else { cur(c) };
-                    let v = alpha * cur(c) + (1.0 - alpha) * pv;
-                    color.row_mut(c, yo)[x] = S::from_f32(v);
+                    let v = alpha * cur(c) + (A::ONE - alpha) * pv;
+                    color.row_mut(c, yo)[x] = S::from_f32(v.f32());
                 }
-                history.row_mut(0, yo)[x] = S::from_f32((n + 1.0).min(p.history_cap));
+                let next = n + A::ONE;
+                let capped = if next > A::of(p.history_cap) { A::of(p.history_cap) } else { next };
+                history.row_mut(0, yo)[x] = S::from_f32(capped.f32());
             } else {
                 for c in 0..ch {
-                    color.row_mut(c, yo)[x] = S::from_f32(cur(c));
+                    color.row_mut(c, yo)[x] = S::from_f32(cur(c).f32());
                 }
                 history.row_mut(0, yo)[x] = S::from_f32(0.0);
             }

@@ -27,7 +27,7 @@ pub(crate) unsafe fn run<S: FloatElement>(
     for yo in 0..dst.height() {
         let y = y0 + yo;
         if y < r || y + r >= h || w < k + 8 {
-            scalar::row(k, kernel, src, dst, y0, yo, scratch);
+            scalar::row::<S, f32>(k, kernel, src, dst, y0, yo, scratch);
             continue;
         }
         let mut c0 = 0;

@@ -9,7 +9,7 @@ pub(crate) mod scalar;
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod avx2;
 
-pub(crate) fn run<S: FloatElement>(
+pub(crate) fn run<S: FloatElement, A: crate::real::Real>(
     isa: Isa,
     k: usize,
     kernel: &View<'_, S>,
@@ -21,7 +21,7 @@ pub(crate) fn run<S: FloatElement>(
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked `isa.is_supported()`.
-        Isa::Avx2 => unsafe { avx2::run(k, kernel, src, dst, y0, scratch) },
-        _ => scalar::run(k, kernel, src, dst, y0, scratch),
+        Isa::Avx2 if A::IS_F32 => unsafe { avx2::run(k, kernel, src, dst, y0, scratch) },
+        _ => scalar::run::<S, A>(k, kernel, src, dst, y0, scratch),
     }
 }

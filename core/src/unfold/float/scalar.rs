@@ -1,11 +1,14 @@
-//! Portable unfold: taps outermost over a row, accumulating whole rows in the
-//! f32 scratch (`channels * width` words), which the compiler can vectorise.
-//! Out-of-image taps are skipped by clipping the x range and the tap rows.
+//! Portable unfold: taps outermost over a row, accumulating whole rows in
+//! scratch (`channels * width` words), which the compiler can vectorise for
+//! f32. Generic over the arithmetic `A` (f32, or f16-rounded for the
+//! f16-arithmetic precision). Out-of-image taps are skipped by clipping the x
+//! range and the tap rows.
 
 use crate::precision::FloatElement;
+use crate::real::Real;
 use crate::view::{View, ViewMut};
 
-pub(crate) fn run<S: FloatElement>(
+pub(crate) fn run<S: FloatElement, A: Real>(
     k: usize,
     kernel: &View<'_, S>,
     src: &View<'_, S>,
@@ -14,12 +17,12 @@ pub(crate) fn run<S: FloatElement>(
     scratch: &mut [f32],
 ) {
     for yo in 0..dst.height() {
-        row(k, kernel, src, dst, y0, yo, scratch);
+        row::<S, A>(k, kernel, src, dst, y0, yo, scratch);
     }
 }
 
 /// Output row `yo` of the band starting at image row `y0`.
-pub(crate) fn row<S: FloatElement>(
+pub(crate) fn row<S: FloatElement, A: Real>(
     k: usize,
     kernel: &View<'_, S>,
     src: &View<'_, S>,
@@ -31,8 +34,8 @@ pub(crate) fn row<S: FloatElement>(
     let (w, h, ch) = (src.width(), src.height(), src.channels());
     let r = k / 2;
     let y = y0 + yo;
-    let acc = &mut scratch[..ch * w];
-    acc.fill(0.0);
+    let acc: &mut [A] = bytemuck::cast_slice_mut(&mut scratch[..ch * w]);
+    acc.fill(A::ZERO);
     for ky in 0..k {
         let Some(sy) = (y + ky).checked_sub(r).filter(|&sy| sy < h) else { continue };
         for kx in 0..k {
@@ -49,7 +52,7 @@ pub(crate) fn row<S: FloatElement>(
                 let kk = &krow[x_lo..x_hi];
                 let ss = &srow[x_lo + kx - r..x_hi + kx - r];
                 for ((a, &kv), &sv) in a.iter_mut().zip(kk).zip(ss) {
-                    *a += kv.to_f32() * sv.to_f32();
+                    *a += A::of(kv.to_f32()) * A::of(sv.to_f32());
                 }
             }
         }
@@ -57,7 +60,7 @@ pub(crate) fn row<S: FloatElement>(
     for c in 0..ch {
         let out = dst.row_mut(c, yo);
         for (o, &a) in out.iter_mut().zip(&acc[c * w..(c + 1) * w]) {
-            *o = S::from_f32(a);
+            *o = S::from_f32(a.f32());
         }
     }
 }
