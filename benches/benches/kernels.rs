@@ -112,7 +112,8 @@ fn bench_conv(c: &mut Criterion) {
     for k in [3usize, 5] {
         let wts = values(cout * cin * k * k, -0.2, 0.2, 9);
         let bias = values(cout, -0.1, 0.1, 10);
-        let layer = Conv2d { k, cin, cout, weights: &wts, bias: Some(&bias), act: Activation::LeakyRelu(0.1) };
+        let layer =
+            Conv2d { k, cin, cout, weights: &wts, bias: Some(&bias), act: Activation::LeakyRelu(0.1), weight_frac: 0 };
         // Multiply-adds of the interior, counted as 2 flops each.
         g.throughput(Throughput::Elements((2 * cout * cin * k * k * PLANE) as u64));
         if k == 3 {

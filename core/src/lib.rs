@@ -29,6 +29,7 @@
 pub mod atrous;
 pub mod conv;
 pub mod error;
+pub mod fixed;
 pub mod isa;
 pub mod math;
 pub mod pool;

@@ -48,6 +48,7 @@ pub struct View<'a, T> {
     shape: Shape,
     row_stride: usize,
     plane_stride: usize,
+    frac: i8,
     _m: PhantomData<&'a [T]>,
 }
 
@@ -93,6 +94,7 @@ impl<'a, T> View<'a, T> {
             shape: Shape::new(channels, width, height),
             row_stride,
             plane_stride,
+            frac: 0,
             _m: PhantomData,
         })
     }
@@ -126,6 +128,20 @@ impl<'a, T> View<'a, T> {
     #[inline]
     pub fn plane_stride(&self) -> usize {
         self.plane_stride
+    }
+
+    /// Fractional bits of a fixed-point tensor (value = stored / 2^frac);
+    /// 0 unless set, and ignored by the floating-point precisions.
+    #[inline]
+    pub fn frac(&self) -> i8 {
+        self.frac
+    }
+
+    /// The same view with its fixed-point format set.
+    #[inline]
+    pub fn with_frac(mut self, frac: i8) -> Self {
+        self.frac = frac;
+        self
     }
 
     /// Row `y` of plane `c`. Panics when out of range (an internal invariant,
@@ -169,6 +185,7 @@ impl<'a, T> View<'a, T> {
             shape: Shape::new(n, self.shape.width, self.shape.height),
             row_stride: self.row_stride,
             plane_stride: self.plane_stride,
+            frac: self.frac,
             _m: PhantomData,
         })
     }
@@ -189,6 +206,7 @@ impl<'a, T> View<'a, T> {
             shape: Shape::new(self.shape.channels, self.shape.width, n),
             row_stride: self.row_stride,
             plane_stride: self.plane_stride,
+            frac: self.frac,
             _m: PhantomData,
         })
     }
@@ -200,6 +218,7 @@ pub struct ViewMut<'a, T> {
     shape: Shape,
     row_stride: usize,
     plane_stride: usize,
+    frac: i8,
     _m: PhantomData<&'a mut [T]>,
 }
 
@@ -239,6 +258,7 @@ impl<'a, T> ViewMut<'a, T> {
             shape: Shape::new(channels, width, height),
             row_stride,
             plane_stride,
+            frac: 0,
             _m: PhantomData,
         })
     }
@@ -264,6 +284,19 @@ impl<'a, T> ViewMut<'a, T> {
         self.shape.height
     }
 
+    /// Fractional bits of a fixed-point tensor (see [`View::frac`]).
+    #[inline]
+    pub fn frac(&self) -> i8 {
+        self.frac
+    }
+
+    /// The same view with its fixed-point format set.
+    #[inline]
+    pub fn with_frac(mut self, frac: i8) -> Self {
+        self.frac = frac;
+        self
+    }
+
     /// A shared view of the same memory.
     #[inline]
     pub fn as_view(&self) -> View<'_, T> {
@@ -272,6 +305,7 @@ impl<'a, T> ViewMut<'a, T> {
             shape: self.shape,
             row_stride: self.row_stride,
             plane_stride: self.plane_stride,
+            frac: self.frac,
             _m: PhantomData,
         }
     }
@@ -284,6 +318,7 @@ impl<'a, T> ViewMut<'a, T> {
             shape: self.shape,
             row_stride: self.row_stride,
             plane_stride: self.plane_stride,
+            frac: self.frac,
             _m: PhantomData,
         }
     }
@@ -337,6 +372,7 @@ impl<'a, T> ViewMut<'a, T> {
             shape: Shape::new(self.shape.channels, self.shape.width, y),
             row_stride: self.row_stride,
             plane_stride: self.plane_stride,
+            frac: self.frac,
             _m: PhantomData,
         };
         let rest = self.shape.height - y;
@@ -351,6 +387,7 @@ impl<'a, T> ViewMut<'a, T> {
             shape: Shape::new(self.shape.channels, self.shape.width, rest),
             row_stride: self.row_stride,
             plane_stride: self.plane_stride,
+            frac: self.frac,
             _m: PhantomData,
         };
         (top, bottom)
@@ -365,6 +402,7 @@ impl<'a, T> ViewMut<'a, T> {
             shape: Shape::new(self.shape.channels, self.shape.width, n),
             row_stride: self.row_stride,
             plane_stride: self.plane_stride,
+            frac: self.frac,
             _m: PhantomData,
         }
     }
@@ -380,6 +418,7 @@ impl<'a, T> ViewMut<'a, T> {
             shape: Shape::new(n, self.shape.width, self.shape.height),
             row_stride: self.row_stride,
             plane_stride: self.plane_stride,
+            frac: self.frac,
             _m: PhantomData,
         })
     }

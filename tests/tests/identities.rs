@@ -178,7 +178,7 @@ proptest! {
         let x = Img::random(cin, w, h, -1.0, 1.0, seed);
         let y = Img::random(cin, w, h, -1.0, 1.0, seed ^ 1);
         let wts = Img::random(cout * cin * k * k, 1, 1, -0.5, 0.5, seed ^ 2).data;
-        let layer = Conv2d { k, cin, cout, weights: &wts, bias: None, act: Activation::Identity };
+        let layer = Conv2d { k, cin, cout, weights: &wts, bias: None, act: Activation::Identity, weight_frac: 0 };
         let mix = Img { data: x.data.iter().zip(&y.data).map(|(p, q)| a * p + b * q).collect(), ..x.clone() };
         for isa in isas_under_test() {
             let run = |src: &Img| {
@@ -201,7 +201,7 @@ proptest! {
         for i in 0..c {
             wts[((i * c + i) * k + k / 2) * k + k / 2] = 1.0;
         }
-        let layer = Conv2d { k, cin: c, cout: c, weights: &wts, bias: None, act: Activation::Identity };
+        let layer = Conv2d { k, cin: c, cout: c, weights: &wts, bias: None, act: Activation::Identity, weight_frac: 0 };
         for isa in isas_under_test() {
             let mut out = Img::filled(c, w, h, f32::NAN);
             let mut scratch = vec![0.0; conv::conv2d_scratch_len::<F32>(k, c, c, w)];

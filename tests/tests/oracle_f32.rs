@@ -129,7 +129,7 @@ proptest! {
         let want = oracle::conv2d(k, cin, cout, &wts.iter().map(|&v| v as f64).collect::<Vec<_>>(),
             bias.then(|| b.iter().map(|&v| v as f64).collect::<Vec<_>>()).as_deref(), leaky.then_some(0.1f32 as f64), &src.to_f64(), w, h);
         let layer = Conv2d { k, cin, cout, weights: &wts, bias: bias.then_some(&b[..]),
-            act: if leaky { Activation::LeakyRelu(0.1) } else { Activation::Identity } };
+            act: if leaky { Activation::LeakyRelu(0.1) } else { Activation::Identity }, weight_frac: 0 };
         for isa in isas_under_test() {
             let mut out = Img::filled(cout, w, h, f32::NAN);
             let mut scratch = vec![0.0; conv::conv2d_scratch_len::<F32>(k, cin, cout, w)];

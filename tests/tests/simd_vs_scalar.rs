@@ -140,7 +140,7 @@ fn conv_simd_matches_scalar() {
                         let wts = Img::random(cout * cin * k * k, 1, 1, -0.5, 0.5, cin as u64).data;
                         let bias = Img::random(cout, 1, 1, -0.5, 0.5, cout as u64).data;
                         for act in [Activation::Identity, Activation::Relu, Activation::LeakyRelu(0.1)] {
-                            let layer = Conv2d { k, cin, cout, weights: &wts, bias: Some(&bias), act };
+                            let layer = Conv2d { k, cin, cout, weights: &wts, bias: Some(&bias), act, weight_frac: 0 };
                             let (a, b) = both(isa, (cout, w, h), |i, out| {
                                 let mut s = vec![0.0; conv::conv2d_scratch_len::<F32>(k, cin, cout, w)];
                                 conv::conv2d::<F32>(i, &layer, &src.view(), &mut out.view_mut(), 0, &mut s).unwrap();

@@ -40,11 +40,12 @@
 //! 0, where it is signal well above the noise at 1.
 
 use crate::error::{check_shape, Error, Result, Shape};
-use crate::precision::{sealed::Sealed, F16Arith, Precision, F16, F32};
+use crate::precision::{sealed::Sealed, F16Arith, Fixed, Precision, F16, F32};
 use crate::unfold::check_band;
 use crate::view::{View, ViewMut};
 use crate::Isa;
 
+pub(crate) mod fixed;
 pub(crate) mod float;
 
 /// The B3-spline taps.
@@ -129,6 +130,22 @@ macro_rules! float_atrous {
 float_atrous!(F32, f32);
 float_atrous!(F16, f32);
 float_atrous!(F16Arith, crate::real::H);
+
+impl AtrousPrecision for Fixed {
+    fn step_impl(
+        _isa: Isa,
+        level: u32,
+        groups: usize,
+        with_variance: bool,
+        params: &AtrousParams,
+        guides: &AtrousGuides<'_, i16>,
+        src: &View<'_, i16>,
+        dst: &mut ViewMut<'_, i16>,
+        y0: usize,
+    ) {
+        fixed::step(level, groups, with_variance, params, guides, src, dst, y0)
+    }
+}
 
 /// One à-trous step at `level` for output rows `y0 ..`.
 ///

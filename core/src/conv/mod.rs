@@ -14,11 +14,12 @@
 //! buffers) comes with the training engine.
 
 use crate::error::{check_scratch, Error, Result, Shape};
-use crate::precision::{sealed::Sealed, F16Arith, Precision, F16, F32};
+use crate::precision::{sealed::Sealed, F16Arith, Fixed, Precision, F16, F32};
 use crate::unfold::check_band;
 use crate::view::{View, ViewMut};
 use crate::Isa;
 
+pub(crate) mod fixed;
 pub(crate) mod float;
 
 /// Supported kernel sizes.
@@ -75,6 +76,9 @@ pub struct Conv2d<'a, T> {
     pub bias: Option<&'a [T]>,
     /// Nonlinearity applied after the bias.
     pub act: Activation,
+    /// Fixed point only: fractional bits of the weights (the bias is in the
+    /// output's format). Ignored by the floating-point precisions.
+    pub weight_frac: i8,
 }
 
 impl<T> Conv2d<'_, T> {
@@ -111,6 +115,10 @@ impl<T> Conv2d<'_, T> {
 /// Precisions the convolution is implemented for.
 pub trait ConvPrecision: Precision + Sealed {
     #[doc(hidden)]
+    fn check_layer(_layer: &Conv2d<'_, Self::Store>) -> Result<()> {
+        Ok(())
+    }
+    #[doc(hidden)]
     fn forward_impl(
         isa: Isa,
         layer: &Conv2d<'_, Self::Store>,
@@ -141,6 +149,34 @@ float_conv!(F32, f32);
 float_conv!(F16, f32);
 float_conv!(F16Arith, crate::real::H);
 
+impl ConvPrecision for Fixed {
+    /// The bit budget: with inputs in `[-32767, 32767]`, every output
+    /// channel's `sum |w|` up to 65535 keeps the exact i32 sum below 2^31.
+    fn check_layer(layer: &Conv2d<'_, i16>) -> Result<()> {
+        let per = layer.cin * layer.k * layer.k;
+        for co in 0..layer.cout {
+            let s: i64 = layer.weights[co * per..(co + 1) * per].iter().map(|&w| (w as i64).abs()).sum();
+            if s > 65535 {
+                return Err(Error::BadParameter {
+                    what: "fixed-point conv weights",
+                    expected: "sum of |w| per output channel at most 65535 stored units (use fewer fractional bits)",
+                });
+            }
+        }
+        Ok(())
+    }
+    fn forward_impl(
+        isa: Isa,
+        layer: &Conv2d<'_, i16>,
+        src: &View<'_, i16>,
+        dst: &mut ViewMut<'_, i16>,
+        y0: usize,
+        _scratch: &mut [f32],
+    ) {
+        fixed::forward(isa, layer, src, dst, y0)
+    }
+}
+
 /// Scratch words [`conv2d`] needs for a layer of kernel size `k` from `cin`
 /// to `cout` channels on rows of `width` pixels (a row accumulator plus the
 /// weights widened to f32).
@@ -159,6 +195,7 @@ pub fn conv2d<P: ConvPrecision>(
 ) -> Result<()> {
     isa.check()?;
     layer.check()?;
+    P::check_layer(layer)?;
     let s = src.shape();
     if s.channels != layer.cin {
         return Err(Error::ShapeMismatch {

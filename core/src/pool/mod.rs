@@ -14,11 +14,12 @@
 //! two column sums: `((f00 + f10) + (f01 + f11)) * 0.25`.
 
 use crate::error::{check_shape, Error, Result, Shape};
-use crate::precision::{sealed::Sealed, F16Arith, Precision, F16, F32};
+use crate::precision::{sealed::Sealed, F16Arith, Fixed, Precision, F16, F32};
 use crate::unfold::check_band;
 use crate::view::{View, ViewMut};
 use crate::Isa;
 
+pub(crate) mod fixed;
 pub(crate) mod float;
 
 /// The coarse size of a fine size: `ceil(n / 2)`.
@@ -83,6 +84,25 @@ macro_rules! float_pool {
 float_pool!(F32, f32);
 float_pool!(F16, f32);
 float_pool!(F16Arith, crate::real::H);
+
+impl PoolPrecision for Fixed {
+    fn reduce_impl(_isa: Isa, op: Reduce, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>, y0: usize) {
+        fixed::reduce(op, src, dst, y0)
+    }
+    fn upsample_impl(_isa: Isa, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>, y0: usize) {
+        fixed::upsample(src, dst, y0)
+    }
+    fn composite_impl(
+        _isa: Isa,
+        fine: &View<'_, i16>,
+        coarse: &View<'_, i16>,
+        alpha: &View<'_, i16>,
+        dst: &mut ViewMut<'_, i16>,
+        y0: usize,
+    ) {
+        fixed::composite(fine, coarse, alpha, dst, y0)
+    }
+}
 
 /// 2x2 reduction (mean or max) of `src` into coarse rows `y0 .. y0 + dst.height()`;
 /// the full coarse image is `ceil(W/2) x ceil(H/2)`.

@@ -33,11 +33,12 @@
 //!   accurate as the direct one.
 
 use crate::error::{check_scratch, check_shape, Error, Result, Shape};
-use crate::precision::{sealed::Sealed, F16Arith, Precision, F16, F32};
+use crate::precision::{sealed::Sealed, F16Arith, Fixed, Precision, F16, F32};
 use crate::unfold::check_band;
 use crate::view::{View, ViewMut};
 use crate::{check_kernel_size, Isa};
 
+pub(crate) mod fixed;
 pub(crate) mod float;
 
 /// Largest window size.
@@ -124,6 +125,25 @@ macro_rules! float_softmax {
 float_softmax!(F32);
 float_softmax!(F16);
 
+impl SoftmaxPrecision for Fixed {
+    fn fused_impl(
+        _isa: Isa,
+        path: WindowPath,
+        inp: &FusedInputs<'_, i16>,
+        dst: &mut ViewMut<'_, i16>,
+        y0: usize,
+        scratch: &mut [f32],
+    ) {
+        fixed::fused(path, inp, dst, y0, scratch)
+    }
+    fn kernels_impl(_isa: Isa, k: usize, logits: &View<'_, i16>, dst: &mut ViewMut<'_, i16>, y0: usize) {
+        fixed::kernels(k, logits, dst, y0)
+    }
+    fn channel_impl(_isa: Isa, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>) {
+        fixed::channel(src, dst)
+    }
+}
+
 impl SoftmaxPrecision for F16Arith {
     fn fused_impl(
         _isa: Isa,
@@ -159,6 +179,7 @@ pub fn fused_scratch_len<P: SoftmaxPrecision>(
 ) -> usize {
     match path {
         WindowPath::Direct => 0,
+        WindowPath::BoxSum if P::NAME == "fixed" => fixed::boxsum_scratch_len(sizes, channels, width),
         WindowPath::BoxSum => float::boxsum_scratch_len(sizes, channels, width),
     }
 }

@@ -21,11 +21,12 @@
 //! (a fraction of the frame's position bounding-box diagonal).
 
 use crate::error::{check_shape, Error, Result, Shape};
-use crate::precision::{sealed::Sealed, F16Arith, Precision, F16, F32};
+use crate::precision::{sealed::Sealed, F16Arith, Fixed, Precision, F16, F32};
 use crate::unfold::check_band;
 use crate::view::{View, ViewMut};
 use crate::Isa;
 
+pub(crate) mod fixed;
 pub(crate) mod float;
 
 /// Tuning of the accumulation.
@@ -102,6 +103,19 @@ macro_rules! float_temporal {
 float_temporal!(F32, f32);
 float_temporal!(F16, f32);
 float_temporal!(F16Arith, crate::real::H);
+
+impl TemporalPrecision for Fixed {
+    fn accumulate_impl(
+        _isa: Isa,
+        inp: &TemporalInputs<'_, i16>,
+        params: &TemporalParams,
+        color: &mut ViewMut<'_, i16>,
+        history: &mut ViewMut<'_, i16>,
+        y0: usize,
+    ) {
+        fixed::accumulate(inp, params, color, history, y0)
+    }
+}
 
 /// One accumulation step for output rows `y0 .. y0 + color.height()`.
 /// Needs either `motion` or both `position` and `prev_position`.

@@ -13,10 +13,11 @@
 //!   NaN maps to 0 in every tone map.
 
 use crate::error::{check_shape, Error, Result};
-use crate::precision::{sealed::Sealed, F16Arith, Precision, F16, F32};
+use crate::precision::{sealed::Sealed, F16Arith, Fixed, Precision, F16, F32};
 use crate::view::{View, ViewMut};
 use crate::Isa;
 
+pub(crate) mod fixed;
 pub(crate) mod float;
 
 /// An elementwise map.
@@ -115,6 +116,22 @@ macro_rules! float_tonemap {
 float_tonemap!(F32, f32);
 float_tonemap!(F16, f32);
 float_tonemap!(F16Arith, crate::real::H);
+
+impl TonemapPrecision for Fixed {
+    fn map_impl(_isa: Isa, op: Map, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>) {
+        fixed::map(op, src, dst)
+    }
+    fn modulate_impl(
+        _isa: Isa,
+        divide: bool,
+        src: &View<'_, i16>,
+        albedo: &View<'_, i16>,
+        eps: f32,
+        dst: &mut ViewMut<'_, i16>,
+    ) {
+        fixed::modulate(divide, src, albedo, eps, dst)
+    }
+}
 
 /// Applies `op` to every element of `src` into `dst` (same shape; they may
 /// not alias — run it in place through a copy).

@@ -13,10 +13,11 @@
 //! registers, so each kernel plane is streamed exactly once.
 
 use crate::error::{check_scratch, check_shape, Result, Shape};
-use crate::precision::{sealed::Sealed, F16Arith, Precision, F16, F32};
+use crate::precision::{sealed::Sealed, F16Arith, Fixed, Precision, F16, F32};
 use crate::view::{View, ViewMut};
 use crate::{check_kernel_size, Isa};
 
+pub(crate) mod fixed;
 pub(crate) mod float;
 
 /// Largest kernel size.
@@ -61,6 +62,23 @@ macro_rules! float_unfold {
 float_unfold!(F32, f32);
 float_unfold!(F16, f32);
 float_unfold!(F16Arith, crate::real::H);
+
+impl UnfoldPrecision for Fixed {
+    fn scratch_len_impl(_k: usize, _channels: usize, _width: usize) -> usize {
+        0
+    }
+    fn apply_impl(
+        isa: Isa,
+        k: usize,
+        kernel: &View<'_, i16>,
+        src: &View<'_, i16>,
+        dst: &mut ViewMut<'_, i16>,
+        y0: usize,
+        _scratch: &mut [f32],
+    ) {
+        fixed::run(isa, k, kernel, src, dst, y0)
+    }
+}
 
 /// Scratch words [`apply`] and [`apply_rows`] need.
 pub fn scratch_len<P: UnfoldPrecision>(k: usize, channels: usize, width: usize) -> usize {

@@ -1,0 +1,54 @@
+//! Convolution in fixed point: i16 weights and activations, exact i32 sums
+//! (the layer check bounds them below 2^31), `>> (w + in - out)` rounded half
+//! up, plus the bias (output format), activation, saturation. Exact integer
+//! sums do not depend on their order, so every path gives the same bits.
+
+use crate::conv::{Activation, Conv2d};
+use crate::fixed::{ld, sat16, shr_round, KERNEL_FRAC};
+use crate::view::{View, ViewMut};
+use crate::Isa;
+
+pub(crate) mod scalar;
+
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod avx2;
+
+pub(crate) fn forward(isa: Isa, layer: &Conv2d<'_, i16>, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>, y0: usize) {
+    match isa {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the caller checked support.
+        Isa::Avx2 => unsafe { avx2::forward(layer, src, dst, y0) },
+        _ => scalar::forward(layer, src, dst, y0),
+    }
+}
+
+/// Bound of pre-activation values (2^17 - 1).
+pub(crate) const PRE_ACT_MAX: i64 = (1 << 17) - 1;
+
+/// The accumulator's right shift to the output format.
+pub(crate) fn shift(layer: &Conv2d<'_, i16>, src: &View<'_, i16>, dst: &ViewMut<'_, i16>) -> i32 {
+    layer.weight_frac as i32 + src.frac() as i32 - dst.frac() as i32
+}
+
+/// Accumulator to output: shift, bias, activation, saturation.
+#[inline(always)]
+pub(crate) fn finish(layer: &Conv2d<'_, i16>, co: usize, acc: i32, shift: i32) -> i16 {
+    let v = shr_round(acc as i64, shift) + layer.bias.map_or(0, |b| ld(b[co]) as i64);
+    // Pre-activation values are clamped to four times the storage range, so
+    // the slope multiply fits i32 in every path (it saturates anyway for
+    // identity and ReLU).
+    let v = v.clamp(-PRE_ACT_MAX, PRE_ACT_MAX);
+    let v = match layer.act {
+        Activation::Identity => v,
+        Activation::Relu => v.max(0),
+        Activation::LeakyRelu(s) => {
+            if v > 0 {
+                v
+            } else {
+                // The slope in Q1.14 (exact for 0.1 to within 2^-15).
+                shr_round(v * crate::fixed::from_f32(s, KERNEL_FRAC) as i64, KERNEL_FRAC as i32)
+            }
+        }
+    };
+    sat16(v)
+}

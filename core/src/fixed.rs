@@ -1,0 +1,154 @@
+//! Fixed-point formats and the integer arithmetic the `Fixed` precision is
+//! built from. Integer operations only: these kernels run where there is no FPU.
+//!
+//! A tensor stores `i16` values meaning `v / 2^frac`, with `frac` carried by
+//! its view ([`View::frac`](crate::View::frac)). The range is symmetric,
+//! `[-32767, 32767]`: a stored `-32768` reads as `-32767`, so no product or
+//! pair sum can overflow `i32`, and results saturate to that range, never wrap.
+//!
+//! ## Bit budgets
+//! - Kernel taps and blend weights (`alpha`): [`KERNEL_FRAC`] = 14, Q1.14, so
+//!   weights in `[-2, 2)` and a normalised kernel sums to 16384.
+//! - Logits: [`LOGIT_FRAC`] = 8, Q7.8: `[-128, 128)` (rendered WSKP maps span
+//!   -61..47), steps of 1/256 nat (0.4% in a weight).
+//! - Softmax weights `e^(l - shift)`: Q.16 in `i32`, `(0, 65536]`.
+//! - Accumulators: `i32` sums of PMADDWD-style pairs `a0 b0 + a1 b1`
+//!   (at most `2 * 32767^2 < 2^31`); where the number of pairs is not bounded
+//!   by a per-layer check, each pair is shifted right by [`PAIR_SHIFT`] before
+//!   it is added, so 225 taps (a 15x15 kernel) stay below 2^31 whatever the data.
+
+/// Q1.14: kernel taps, blend weights, albedo.
+pub const KERNEL_FRAC: i8 = 14;
+/// Q7.8: logits.
+pub const LOGIT_FRAC: i8 = 8;
+/// One in the Q.16 weight format.
+pub const WEIGHT_ONE: i32 = 1 << 16;
+/// Largest stored value.
+pub const QMAX: i32 = 32767;
+/// Pair sums are shifted right by this before accumulation (113 pairs of a
+/// 15x15 kernel: `113 * 2^31 / 2^7 < 2^31`).
+pub const PAIR_SHIFT: i32 = 7;
+
+/// Reads a stored value into the symmetric range.
+#[inline(always)]
+pub fn ld(v: i16) -> i32 {
+    (v as i32).max(-QMAX)
+}
+
+/// Saturates to the stored range.
+#[inline(always)]
+pub fn sat16(v: i64) -> i16 {
+    v.clamp(-(QMAX as i64), QMAX as i64) as i16
+}
+
+/// `v / 2^s` rounded half up for `s > 0`; `v * 2^-s` (saturating at i64) for `s <= 0`.
+#[inline(always)]
+pub fn shr_round(v: i64, s: i32) -> i64 {
+    if s > 0 {
+        if s >= 63 {
+            return if v < 0 { -1 } else { 0 };
+        }
+        (v + (1i64 << (s - 1))) >> s
+    } else {
+        let s = (-s).min(62);
+        v.saturating_mul(1i64 << s)
+    }
+}
+
+/// `a / b` rounded to nearest (half away from zero); `b > 0`.
+#[inline(always)]
+pub fn div_round(a: i64, b: i64) -> i64 {
+    if a >= 0 {
+        (a + b / 2) / b
+    } else {
+        -((-a + b / 2) / b)
+    }
+}
+
+/// `2^(y / 256)` in Q.16 for `y <= 0` given in Q.8 (0 below `2^-17`).
+/// Degree-4 polynomial for the fraction (max relative error 1e-5).
+#[inline(always)]
+pub fn exp2_q8(y: i32) -> i32 {
+    if y > 0 {
+        return WEIGHT_ONE; // callers only pass y <= 0
+    }
+    let n = y >> 8; // floor
+    let f = y & 255; // 0..255
+    if n < -17 {
+        return 0;
+    }
+    let t = f << 8; // Q.16 in [0, 1)
+                    // 2^t - 1 = t (c1 + t (c2 + t (c3 + t c4))), coefficients in Q.16.
+    const C: [i64; 4] = [45418, 15821, 3413, 884];
+    let t64 = t as i64;
+    let mut p = C[3];
+    p = C[2] + ((p * t64) >> 16);
+    p = C[1] + ((p * t64) >> 16);
+    p = C[0] + ((p * t64) >> 16);
+    let m = (1i64 << 16) + ((p * t64) >> 16); // Q.16 in [1, 2)
+    shr_round(m, -n) as i32
+}
+
+/// `e^x` in Q.16 for `x <= 0` given in Q.8 (the logit format's unit).
+#[inline(always)]
+pub fn exp_q8(x: i32) -> i32 {
+    // x * log2(e): log2(e) in Q.14 is 23637; |x| < 2^17 keeps the product in i32 range via i64.
+    let y = shr_round(x as i64 * 23637, 14);
+    exp2_q8(y.max(i32::MIN as i64) as i32)
+}
+
+/// `log2(v / 2^frac)` in Q.16 for `v > 0` (`i32::MIN / 2` for `v <= 0`).
+/// Degree-5 polynomial for the mantissa (max error 3e-5).
+#[inline(always)]
+pub fn log2_q16(v: i64, frac: i32) -> i64 {
+    if v <= 0 {
+        return (i32::MIN / 2) as i64;
+    }
+    let lz = v.leading_zeros() as i32; // 64-bit
+    let e = 63 - lz; // floor(log2 v)
+                     // Mantissa in [1, 2) as Q.16.
+    let m = if e >= 16 { v >> (e - 16) } else { v << (16 - e) };
+    let u = m - (1 << 16); // [0, 1) in Q.16
+    const C: [i64; 5] = [94491, -46444, 27225, -12741, 3007];
+    let mut p = C[4];
+    for c in C[..4].iter().rev() {
+        p = c + ((p * u) >> 16);
+    }
+    let frac_part = (p * u) >> 16;
+    (((e - frac) as i64) << 16) + frac_part
+}
+
+/// `2^(y / 2^16)` as a value with `frac` fractional bits, saturating.
+#[inline(always)]
+pub fn exp2_q16(y: i64, frac: i32) -> i64 {
+    let n = y >> 16; // floor
+    let t = y & 0xffff;
+    const C: [i64; 4] = [45418, 15821, 3413, 884];
+    let mut p = C[3];
+    p = C[2] + ((p * t) >> 16);
+    p = C[1] + ((p * t) >> 16);
+    p = C[0] + ((p * t) >> 16);
+    let m = (1i64 << 16) + ((p * t) >> 16); // 2^frac(t) in Q.16
+    shr_round(m, 16 - frac - n.clamp(-64, 64) as i32)
+}
+
+/// Converts a stored value from `from` to `to` fractional bits (rounded, unsaturated).
+#[inline(always)]
+pub fn rescale(v: i64, from: i32, to: i32) -> i64 {
+    shr_round(v, from - to)
+}
+
+/// The stored value of `x` in format `frac` (rounded, saturated) — for constants.
+pub fn from_f32(x: f32, frac: i8) -> i16 {
+    let s = x * libm::exp2f(frac as f32);
+    let r = if s >= 0.0 { s + 0.5 } else { s - 0.5 };
+    if r != r {
+        0
+    } else if r >= QMAX as f32 {
+        QMAX as i16
+    } else if r <= -(QMAX as f32) {
+        -QMAX as i16
+    } else {
+        r as i16
+    }
+}

@@ -1,0 +1,131 @@
+//! Temporal accumulation in fixed point (integer only; see [`super`] for the
+//! method). Bilinear weights in Q1.14, squared distances in `i64` against the
+//! limits converted to the position and normal formats, the blend weight
+//! `max(1/(n+1), alpha_min)` by integer division.
+
+use super::{TemporalInputs, TemporalParams};
+use crate::fixed::{div_round, ld, rescale, sat16, shr_round};
+use crate::view::{View, ViewMut};
+
+const ONE: i64 = 1 << 14;
+
+fn at(v: &View<'_, i16>, c: usize, y: usize, x: usize) -> i64 {
+    ld(v.at(c, y, x)) as i64
+}
+
+fn dist2(a: &View<'_, i16>, ya: usize, xa: usize, b: &View<'_, i16>, yb: usize, xb: usize) -> i64 {
+    // Both in their own formats: bring b to a's.
+    (0..3)
+        .map(|c| {
+            let d = at(a, c, ya, xa) - rescale(at(b, c, yb, xb), b.frac() as i32, a.frac() as i32);
+            d * d
+        })
+        .sum()
+}
+
+/// A limit in a format, squared (in that format's squared units).
+fn limit2(l: f32, frac: i8) -> i64 {
+    let q = (l.clamp(0.0, 1e6) as f64 * libm::exp2(frac as f64)) as i64;
+    q.saturating_mul(q)
+}
+
+fn agrees(inp: &TemporalInputs<'_, i16>, lp: i64, ln: i64, y: usize, x: usize, py: usize, px: usize) -> bool {
+    if let (Some(a), Some(b)) = (&inp.position, &inp.prev_position) {
+        if dist2(a, y, x, b, py, px) >= lp {
+            return false;
+        }
+    }
+    if let (Some(a), Some(b)) = (&inp.normal, &inp.prev_normal) {
+        if dist2(a, y, x, b, py, px) >= ln {
+            return false;
+        }
+    }
+    true
+}
+
+pub(crate) fn accumulate(
+    inp: &TemporalInputs<'_, i16>,
+    p: &TemporalParams,
+    color: &mut ViewMut<'_, i16>,
+    history: &mut ViewMut<'_, i16>,
+    y0: usize,
+) {
+    let (w, h, ch) = (inp.color.width(), inp.color.height(), inp.color.channels());
+    let lp = inp.position.as_ref().map_or(0, |v| limit2(p.pos_limit, v.frac()));
+    let ln = inp.normal.as_ref().map_or(0, |v| limit2(p.normal_limit, v.frac()));
+    let (fc, fpc, fh) = (inp.color.frac() as i32, inp.prev_color.frac() as i32, inp.prev_history.frac() as i32);
+    let (fo, fho) = (color.frac() as i32, history.frac() as i32);
+    let amin = (p.alpha_min.clamp(0.0, 1.0) * ONE as f32) as i64;
+    let cap = (p.history_cap.clamp(0.0, 1e6) as f64 * libm::exp2(fh as f64)) as i64;
+    for yo in 0..color.height() {
+        let y = y0 + yo;
+        for x in 0..w {
+            let mut wsum = 0i64;
+            let mut hist = 0i64;
+            let mut prev = [0i64; 4];
+            let mut take = |py: usize, px: usize, wt: i64| {
+                wsum += wt;
+                hist += wt * at(&inp.prev_history, 0, py, px);
+                for (c, pv) in prev.iter_mut().enumerate().take(ch.min(4)) {
+                    *pv += wt * at(&inp.prev_color, c, py, px);
+                }
+            };
+            if let Some(m) = &inp.motion {
+                let fm = m.frac().clamp(0, 14) as i32;
+                let scale = 1i64 << fm;
+                let fx = x as i64 * scale + rescale(at(m, 0, y, x), m.frac() as i32, fm);
+                let fy = y as i64 * scale + rescale(at(m, 1, y, x), m.frac() as i32, fm);
+                if fx > -scale && fy > -scale && fx < w as i64 * scale && fy < h as i64 * scale {
+                    let (x0, y0i) = (fx.div_euclid(scale), fy.div_euclid(scale));
+                    let (tx, ty) = (fx.rem_euclid(scale) << (14 - fm), fy.rem_euclid(scale) << (14 - fm));
+                    for (dy, wy) in [(0i64, ONE - ty), (1, ty)] {
+                        for (dx, wx) in [(0i64, ONE - tx), (1, tx)] {
+                            let (py, px) = (y0i + dy, x0 + dx);
+                            let wt = (wx * wy) >> 14;
+                            if wt <= 0 || py < 0 || px < 0 || py >= h as i64 || px >= w as i64 {
+                                continue;
+                            }
+                            let (py, px) = (py as usize, px as usize);
+                            if agrees(inp, lp, ln, y, x, py, px) {
+                                take(py, px, wt);
+                            }
+                        }
+                    }
+                }
+            } else if let (Some(a), Some(b)) = (&inp.position, &inp.prev_position) {
+                let r = p.search_radius;
+                let mut best: Option<(i64, usize, usize)> = None;
+                for py in y.saturating_sub(r)..(y + r + 1).min(h) {
+                    for px in x.saturating_sub(r)..(x + r + 1).min(w) {
+                        let d = dist2(a, y, x, b, py, px);
+                        if best.is_none_or(|(bd, _, _)| d < bd) {
+                            best = Some((d, py, px));
+                        }
+                    }
+                }
+                if let Some((_, py, px)) = best {
+                    if agrees(inp, lp, ln, y, x, py, px) {
+                        take(py, px, ONE);
+                    }
+                }
+            }
+            if wsum > 0 {
+                let n = div_round(hist, wsum).max(0); // Q.fh
+                let alpha = div_round(ONE << fh, n + (1i64 << fh)).max(amin).min(ONE); // Q.14
+                for c in 0..ch {
+                    let cur = at(&inp.color, c, y, x);
+                    let pv = if c < 4 { rescale(div_round(prev[c], wsum), fpc, fc) } else { cur };
+                    let v = shr_round(alpha * cur + (ONE - alpha) * pv, 14);
+                    color.row_mut(c, yo)[x] = sat16(rescale(v, fc, fo));
+                }
+                let next = (n + (1i64 << fh)).min(cap);
+                history.row_mut(0, yo)[x] = sat16(rescale(next, fh, fho));
+            } else {
+                for c in 0..ch {
+                    color.row_mut(c, yo)[x] = sat16(rescale(at(&inp.color, c, y, x), fc, fo));
+                }
+                history.row_mut(0, yo)[x] = 0;
+            }
+        }
+    }
+}
