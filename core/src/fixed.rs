@@ -142,7 +142,7 @@ pub fn rescale(v: i64, from: i32, to: i32) -> i64 {
 pub fn from_f32(x: f32, frac: i8) -> i16 {
     let s = x * libm::exp2f(frac as f32);
     let r = if s >= 0.0 { s + 0.5 } else { s - 0.5 };
-    if r != r {
+    if r.is_nan() {
         0
     } else if r >= QMAX as f32 {
         QMAX as i16

@@ -12,7 +12,7 @@ use mcdenoise_core::softmax::SoftmaxPrecision;
 use mcdenoise_core::temporal::TemporalPrecision;
 use mcdenoise_core::tonemap::TonemapPrecision;
 use mcdenoise_core::unfold::UnfoldPrecision;
-use mcdenoise_core::{F16Arith, Precision, View, ViewMut, F16, F32};
+use mcdenoise_core::{F16Arith, Fixed, Precision, View, ViewMut, F16, F32};
 
 use crate::error::{HostError, Result};
 
@@ -52,6 +52,20 @@ impl PrecisionKind {
     }
 }
 
+/// What a tensor holds, for choosing its fixed-point format.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kind {
+    /// Radiance-like HDR values: the format keeps the 99.9th percentile of
+    /// `|v|` (times 2 for filter overshoot) representable; the brighter tail
+    /// (fireflies) saturates.
+    Image,
+    /// Values in [-1, 1] or [0, 1] (normals, albedo, weights): Q1.14.
+    Unit,
+    /// Geometry and other tensors without outliers (positions, depth, motion,
+    /// variances): the format keeps the maximum `|v|` (times 2) representable.
+    Plain,
+}
+
 /// A precision the host pipelines can run in.
 pub trait HostPrecision:
     Precision
@@ -63,17 +77,21 @@ pub trait HostPrecision:
     + TemporalPrecision
     + AtrousPrecision
 {
+    /// Fractional bits to store `src` with (0 for the float precisions).
+    fn choose_frac(_src: &[f32], _kind: Kind) -> i8 {
+        0
+    }
     /// Encodes f32 values into storage (saturating).
-    fn encode(src: &[f32], dst: &mut [Self::Store]);
+    fn encode(src: &[f32], dst: &mut [Self::Store], frac: i8);
     /// Decodes storage into f32.
-    fn decode(src: &[Self::Store], dst: &mut [f32]);
+    fn decode(src: &[Self::Store], dst: &mut [f32], frac: i8);
 }
 
 impl HostPrecision for F32 {
-    fn encode(src: &[f32], dst: &mut [f32]) {
+    fn encode(src: &[f32], dst: &mut [f32], _frac: i8) {
         dst.copy_from_slice(src);
     }
-    fn decode(src: &[f32], dst: &mut [f32]) {
+    fn decode(src: &[f32], dst: &mut [f32], _frac: i8) {
         dst.copy_from_slice(src);
     }
 }
@@ -82,12 +100,12 @@ impl HostPrecision for F32 {
 pub const F16_MAX: f32 = 65504.0;
 
 impl HostPrecision for F16 {
-    fn encode(src: &[f32], dst: &mut [half::f16]) {
+    fn encode(src: &[f32], dst: &mut [half::f16], _frac: i8) {
         for (d, &s) in dst.iter_mut().zip(src) {
             *d = half::f16::from_f32(s.clamp(-F16_MAX, F16_MAX));
         }
     }
-    fn decode(src: &[half::f16], dst: &mut [f32]) {
+    fn decode(src: &[half::f16], dst: &mut [f32], _frac: i8) {
         for (d, &s) in dst.iter_mut().zip(src) {
             *d = s.to_f32();
         }
@@ -95,11 +113,54 @@ impl HostPrecision for F16 {
 }
 
 impl HostPrecision for F16Arith {
-    fn encode(src: &[f32], dst: &mut [half::f16]) {
-        F16::encode(src, dst)
+    fn encode(src: &[f32], dst: &mut [half::f16], frac: i8) {
+        F16::encode(src, dst, frac)
     }
-    fn decode(src: &[half::f16], dst: &mut [f32]) {
-        F16::decode(src, dst)
+    fn decode(src: &[half::f16], dst: &mut [f32], frac: i8) {
+        F16::decode(src, dst, frac)
+    }
+}
+
+/// The fixed-point format policy: fractional bits that keep `m` (times 2 of
+/// headroom) below 2^15, between -8 and 14.
+pub fn frac_for_max(m: f32) -> i8 {
+    if m.is_nan() || m <= 0.0 || !m.is_finite() {
+        return 14;
+    }
+    let bits = (2.0 * m).log2().ceil() as i32; // integer bits needed
+    (15 - bits).clamp(-8, 14) as i8
+}
+
+/// The 99.9th percentile of `|v|` (exact, by selection on a copy).
+pub fn percentile_abs(src: &[f32], q: f64) -> f32 {
+    if src.is_empty() {
+        return 0.0;
+    }
+    let mut a: Vec<f32> = src.iter().map(|v| v.abs()).collect();
+    let i = ((a.len() - 1) as f64 * q).round() as usize;
+    *a.select_nth_unstable_by(i, f32::total_cmp).1
+}
+
+impl HostPrecision for Fixed {
+    fn choose_frac(src: &[f32], kind: Kind) -> i8 {
+        match kind {
+            Kind::Unit => mcdenoise_core::fixed::KERNEL_FRAC,
+            Kind::Plain => frac_for_max(src.iter().fold(0.0f32, |m, v| m.max(v.abs()))),
+            Kind::Image => frac_for_max(percentile_abs(src, 0.999)),
+        }
+    }
+    fn encode(src: &[f32], dst: &mut [i16], frac: i8) {
+        let scale = (frac as f32).exp2();
+        for (d, &s) in dst.iter_mut().zip(src) {
+            let v = (s * scale).round();
+            *d = if v.is_nan() { 0 } else { v.clamp(-32767.0, 32767.0) as i16 };
+        }
+    }
+    fn decode(src: &[i16], dst: &mut [f32], frac: i8) {
+        let scale = (-(frac as f32)).exp2();
+        for (d, &s) in dst.iter_mut().zip(src) {
+            *d = s.max(-32767) as f32 * scale;
+        }
     }
 }
 
@@ -114,38 +175,60 @@ pub struct Planes<T> {
     pub height: usize,
     /// Plane-major, row-major values.
     pub data: Vec<T>,
+    /// Fixed-point fractional bits (0 for floats).
+    pub frac: i8,
 }
 
 impl<T: Copy + Default> Planes<T> {
     /// Zero-filled.
     pub fn new(channels: usize, width: usize, height: usize) -> Self {
-        Planes { channels, width, height, data: vec![T::default(); channels * width * height] }
+        Planes { channels, width, height, data: vec![T::default(); channels * width * height], frac: 0 }
     }
-    /// A shared view.
+    /// From f32 data already in hand (frac 0).
+    pub fn from_vec(channels: usize, width: usize, height: usize, data: Vec<T>) -> Self {
+        Planes { channels, width, height, data, frac: 0 }
+    }
+    /// The same planes with a fixed-point format.
+    pub fn with_frac(mut self, frac: i8) -> Self {
+        self.frac = frac;
+        self
+    }
+    /// A shared view (carrying the format).
     pub fn view(&self) -> View<'_, T> {
-        View::new(&self.data, self.channels, self.width, self.height).expect("planes have their shape")
+        View::new(&self.data, self.channels, self.width, self.height)
+            .expect("planes have their shape")
+            .with_frac(self.frac)
     }
-    /// An exclusive view.
+    /// An exclusive view (carrying the format).
     pub fn view_mut(&mut self) -> ViewMut<'_, T> {
-        ViewMut::new(&mut self.data, self.channels, self.width, self.height).expect("planes have their shape")
+        ViewMut::new(&mut self.data, self.channels, self.width, self.height)
+            .expect("planes have their shape")
+            .with_frac(self.frac)
     }
 }
 
 impl<T: Copy + Default> Planes<T> {
-    /// Encodes f32 planes.
+    /// Encodes f32 planes of radiance-like values.
     pub fn encode<P: HostPrecision<Store = T>>(channels: usize, width: usize, height: usize, src: &[f32]) -> Self {
-        let mut p = Planes::new(channels, width, height);
-        P::encode(src, &mut p.data);
-        p
+        Self::encode_as::<P>(channels, width, height, src, Kind::Image)
     }
-    /// Re-encodes f32 planes into this buffer (same shape).
-    pub fn encode_from<P: HostPrecision<Store = T>>(&mut self, src: &[f32]) {
-        P::encode(src, &mut self.data);
+    /// Encodes f32 planes of the given kind (its format chosen by the policy).
+    pub fn encode_as<P: HostPrecision<Store = T>>(
+        channels: usize,
+        width: usize,
+        height: usize,
+        src: &[f32],
+        kind: Kind,
+    ) -> Self {
+        let frac = P::choose_frac(src, kind);
+        let mut p = Planes::new(channels, width, height).with_frac(frac);
+        P::encode(src, &mut p.data, frac);
+        p
     }
     /// Decodes to f32.
     pub fn decode<P: HostPrecision<Store = T>>(&self) -> Vec<f32> {
         let mut out = vec![0.0; self.data.len()];
-        P::decode(&self.data, &mut out);
+        P::decode(&self.data, &mut out, self.frac);
         out
     }
 }

@@ -34,7 +34,7 @@ use mcdenoise_core::{View, ViewMut};
 use super::{scene_scale, Ctx, Denoiser, Plan, Timings};
 use crate::error::{HostError, Result};
 use crate::frame::{Buffer, Frame};
-use crate::precision::{HostPrecision, Planes};
+use crate::precision::{HostPrecision, Kind, Planes};
 
 /// Albedo epsilon of (de)modulation.
 pub const ALBEDO_EPS: f32 = 1e-3;
@@ -179,18 +179,19 @@ impl<P: HostPrecision> Denoiser for Atrous<P> {
         let zeros = Planes::<f32>::new(1, w, h);
         let noise32 = t.time("noise estimate", || {
             if b_irr.is_some() {
-                box_average(ctx, &Planes { channels: 1, width: w, height: h, data: noise_raw }, &zeros, NOISE_RADIUS)
+                box_average(ctx, &Planes::from_vec(1, w, h, noise_raw), &zeros, NOISE_RADIUS)
             } else {
                 // A 3x3 median, not a box: where the local estimate mistook an
                 // edge for noise, those pixels are a minority of the window.
-                Ok(Planes { channels: 1, width: w, height: h, data: median3(&noise_raw, w, h) })
+                Ok(Planes::from_vec(1, w, h, median3(&noise_raw, w, h)))
             }
         })?;
-        let enc = |ch: usize, d: &[f32]| Planes::<P::Store>::encode::<P>(ch, w, h, d);
-        let noise = enc(1, &noise32.data);
-        let normal = if self.use_normal { need(Buffer::Normal, true)?.map(|d| enc(3, d)) } else { None };
-        let position = if self.use_position { need(Buffer::Position, true)?.map(|d| enc(3, d)) } else { None };
-        let depth = if self.use_depth { need(Buffer::Depth, true)?.map(|d| enc(1, d)) } else { None };
+        let enc = |ch: usize, d: &[f32], kind: Kind| Planes::<P::Store>::encode_as::<P>(ch, w, h, d, kind);
+        let noise = enc(1, &noise32.data, Kind::Plain);
+        let normal = if self.use_normal { need(Buffer::Normal, true)?.map(|d| enc(3, d, Kind::Unit)) } else { None };
+        let position =
+            if self.use_position { need(Buffer::Position, true)?.map(|d| enc(3, d, Kind::Plain)) } else { None };
+        let depth = if self.use_depth { need(Buffer::Depth, true)?.map(|d| enc(1, d, Kind::Plain)) } else { None };
         let guides = AtrousGuides {
             noise: noise.view(),
             normal: normal.as_ref().map(|p| p.view()),
@@ -218,14 +219,15 @@ impl<P: HostPrecision> Denoiser for Atrous<P> {
             c0[3 * n..].copy_from_slice(&noise32.data);
         }
         let nch = 3 * groups + usize::from(sure_single);
-        let mut cur = enc(nch, &c0);
+        let _ = nch;
+        let mut cur = enc(3 * groups + usize::from(sure_single), &c0, Kind::Image);
         // Reconstruction of the mean image, in f32: sum of beta * D, then c_N.
         let mut recon = vec![0.0f32; 3 * n];
         let isa = ctx.isa;
         let params = self.params;
         for level in 0..LEVELS {
             let out_ch = 3 * groups + 2 * usize::from(sure_single);
-            let mut next = Planes::<P::Store>::new(out_ch, w, h);
+            let mut next = Planes::<P::Store>::new(out_ch, w, h).with_frac(cur.frac);
             let cv = cur.view();
             t.time("a-trous levels", || {
                 bands(ctx, next.view_mut(), 1, 0, |band, y0, _| {
@@ -236,7 +238,7 @@ impl<P: HostPrecision> Denoiser for Atrous<P> {
                 let cf = cur.decode::<P>();
                 let nf = next.decode::<P>();
                 let (e, s, d) = t.time("SURE terms", || sure_terms(&cf, &nf, groups, sure_single, n));
-                let es = Planes { channels: 2, width: w, height: h, data: [e, s].concat() };
+                let es = Planes::from_vec(2, w, h, [e, s].concat());
                 let avg = t.time("SURE window", || box_average(ctx, &es, &zeros, SURE_RADIUS))?;
                 t.time("SURE pick", || {
                     let dv = View::new(&d, 3, w, h).expect("shape");
@@ -248,7 +250,7 @@ impl<P: HostPrecision> Denoiser for Atrous<P> {
             }
             // Next level's input: the colour planes (+ the propagated variance).
             cur = if sure_single {
-                let mut nx = Planes::<P::Store>::new(4, w, h);
+                let mut nx = Planes::<P::Store>::new(4, w, h).with_frac(next.frac);
                 nx.data.copy_from_slice(&next.data[..4 * n]);
                 nx
             } else {

@@ -7,7 +7,7 @@ use mcdenoise_core::temporal::{self, TemporalInputs, TemporalParams};
 use super::{Ctx, Denoiser, Plan, Timings};
 use crate::error::{HostError, Result};
 use crate::frame::{Buffer, Frame};
-use crate::precision::{HostPrecision, Planes};
+use crate::precision::{HostPrecision, Kind, Planes};
 
 /// `--method none`: the (sanitised) input through the pipeline's precision.
 pub struct Passthrough<P: HostPrecision> {
@@ -63,6 +63,9 @@ pub fn scene_scale(f: &Frame) -> f32 {
         1.0
     }
 }
+
+/// Fixed-point format of the history counts (Q7.8: up to 127 frames).
+pub const HISTORY_FRAC: i8 = 8;
 
 /// Fraction of the scene scale a reprojected tap's world position may differ by.
 pub const POSITION_TOLERANCE: f32 = 0.02;
@@ -121,19 +124,21 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
     /// Accumulates one frame; returns the accumulated colour and the history counts.
     pub fn step(&mut self, f: &Frame, ctx: &mut Ctx, t: &mut Timings) -> Result<StepOut<'_, P>> {
         let (w, h) = (f.width, f.height);
-        let enc = |b: Buffer| f.get(b).map(|d| Planes::<P::Store>::encode::<P>(b.channels(), w, h, d));
-        let color = t.time("encode", || enc(Buffer::Color)).ok_or_else(|| HostError::bad(&f.path, "no colour"))?;
-        let normal = if self.use_normal { enc(Buffer::Normal) } else { None };
-        let position = if self.use_position { enc(Buffer::Position) } else { None };
-        let motion = if self.use_motion { enc(Buffer::Motion) } else { None };
+        let enc =
+            |b: Buffer, kind: Kind| f.get(b).map(|d| Planes::<P::Store>::encode_as::<P>(b.channels(), w, h, d, kind));
+        let color =
+            t.time("encode", || enc(Buffer::Color, Kind::Image)).ok_or_else(|| HostError::bad(&f.path, "no colour"))?;
+        let normal = if self.use_normal { enc(Buffer::Normal, Kind::Unit) } else { None };
+        let position = if self.use_position { enc(Buffer::Position, Kind::Plain) } else { None };
+        let motion = if self.use_motion { enc(Buffer::Motion, Kind::Plain) } else { None };
         if (self.use_motion && motion.is_none()) || (self.use_position && position.is_none()) {
             return Err(HostError::bad(&f.path, "lacks a buffer the first frame of the sequence had"));
         }
         let next = match self.prev.take() {
-            None => History { color, hist: Planes::new(1, w, h), normal, position },
+            None => History { color, hist: Planes::new(1, w, h).with_frac(HISTORY_FRAC), normal, position },
             Some(prev) => {
-                let mut out = Planes::new(3, w, h);
-                let mut hist = Planes::new(1, w, h);
+                let mut out = Planes::new(3, w, h).with_frac(color.frac);
+                let mut hist = Planes::new(1, w, h).with_frac(HISTORY_FRAC);
                 let inp = TemporalInputs {
                     color: color.view(),
                     normal: normal.as_ref().map(|p| p.view()),

@@ -155,11 +155,7 @@ pub fn create(kind: MethodKind, settings: &Settings, first: &Frame) -> Result<Bo
         PrecisionKind::F32 => create_in::<mcdenoise_core::F32>(kind, settings, first),
         PrecisionKind::F16 => create_in::<mcdenoise_core::F16>(kind, settings, first),
         PrecisionKind::F16Arith => create_in::<mcdenoise_core::F16Arith>(kind, settings, first),
-        other => Err(HostError::Usage(format!(
-            "--precision {}: not available yet for method {} (f32, f16 and f16-arith are)",
-            other.name(),
-            kind.name()
-        ))),
+        PrecisionKind::Fixed => create_in::<mcdenoise_core::Fixed>(kind, settings, first),
     }
 }
 
