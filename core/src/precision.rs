@@ -96,7 +96,8 @@ pub trait FloatElement: Element + sealed::SealedElem {
     const IS_F16: bool;
     /// Widens to f32 (exact).
     fn to_f32(self) -> f32;
-    /// Rounds from f32 (nearest, ties to even; out-of-range f16 becomes ±inf).
+    /// Rounds from f32 (nearest, ties to even); f16 saturates at ±65504
+    /// instead of overflowing to infinity (NaN stays NaN).
     fn from_f32(v: f32) -> Self;
 }
 
@@ -120,7 +121,14 @@ impl FloatElement for half::f16 {
     }
     #[inline(always)]
     fn from_f32(v: f32) -> Self {
-        half::f16::from_f32(v)
+        let c = if v > crate::real::F16_MAX {
+            crate::real::F16_MAX
+        } else if v < -crate::real::F16_MAX {
+            -crate::real::F16_MAX
+        } else {
+            v
+        };
+        half::f16::from_f32(c)
     }
 }
 

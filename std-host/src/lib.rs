@@ -9,6 +9,7 @@ pub mod error;
 pub mod frame;
 pub mod methods;
 pub mod metrics;
+pub mod oracle;
 pub mod output;
 pub mod par;
 pub mod precision;

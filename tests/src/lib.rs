@@ -4,7 +4,7 @@
 //! would overflow f64 beyond 709, so the oracle subtracts the window maximum —
 //! the one mathematically exact rewrite — and sums in f64.
 
-pub mod oracle;
+pub use mcdenoise::oracle;
 
 use rand::rngs::SmallRng;
 use rand::{Rng, SeedableRng};

@@ -115,6 +115,10 @@ impl<T> Conv2d<'_, T> {
 /// Precisions the convolution is implemented for.
 pub trait ConvPrecision: Precision + Sealed {
     #[doc(hidden)]
+    fn scratch_len_impl(k: usize, cin: usize, cout: usize, width: usize) -> usize {
+        width.saturating_add(cout.saturating_mul(cin).saturating_mul(k * k))
+    }
+    #[doc(hidden)]
     fn check_layer(_layer: &Conv2d<'_, Self::Store>) -> Result<()> {
         Ok(())
     }
@@ -150,6 +154,9 @@ float_conv!(F16, f32);
 float_conv!(F16Arith, crate::real::H);
 
 impl ConvPrecision for Fixed {
+    fn scratch_len_impl(_k: usize, _cin: usize, _cout: usize, _width: usize) -> usize {
+        0
+    }
     /// The bit budget: with inputs in `[-32767, 32767]`, every output
     /// channel's `sum |w|` up to 65535 keeps the exact i32 sum below 2^31.
     fn check_layer(layer: &Conv2d<'_, i16>) -> Result<()> {
@@ -181,7 +188,7 @@ impl ConvPrecision for Fixed {
 /// to `cout` channels on rows of `width` pixels (a row accumulator plus the
 /// weights widened to f32).
 pub fn conv2d_scratch_len<P: ConvPrecision>(k: usize, cin: usize, cout: usize, width: usize) -> usize {
-    width.saturating_add(cout.saturating_mul(cin).saturating_mul(k * k))
+    P::scratch_len_impl(k, cin, cout, width)
 }
 
 /// Forward convolution into output rows `y0 .. y0 + dst.height()`.

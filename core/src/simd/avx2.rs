@@ -22,7 +22,8 @@ pub unsafe fn load8<S: FloatElement>(p: *const S) -> __m256 {
     }
 }
 
-/// Stores eight f32 lanes to `p` (unaligned), rounding to the storage type.
+/// Stores eight f32 lanes to `p` (unaligned), rounding to the storage type
+/// (f16 saturating at ±65504).
 ///
 /// # Safety
 /// `p .. p + 8` must be writable.
@@ -30,6 +31,10 @@ pub unsafe fn load8<S: FloatElement>(p: *const S) -> __m256 {
 #[target_feature(enable = "avx2,fma,f16c")]
 pub unsafe fn store8<S: FloatElement>(p: *mut S, v: __m256) {
     if S::IS_F16 {
+        // Saturate at ±65504 (MAXPS/MINPS return their second operand for NaN,
+        // so NaN passes through as the scalar path lets it).
+        let m = crate::real::F16_MAX;
+        let v = _mm256_min_ps(_mm256_set1_ps(m), _mm256_max_ps(_mm256_set1_ps(-m), v));
         let h = _mm256_cvtps_ph::<_MM_FROUND_TO_NEAREST_INT>(v);
         // SAFETY: caller guarantees 16 writable bytes.
         unsafe { _mm_storeu_si128(p as *mut __m128i, h) }

@@ -1,0 +1,256 @@
+//! The reduced precisions (f16 storage, f16 arithmetic, fixed point) against
+//! the f64 oracle, on the inputs as they were stored (so the figure is the
+//! arithmetic's error, not the inputs' quantisation), and the fixed-point
+//! SIMD paths against scalar, bit for bit.
+
+use mcdenoise::precision::{HostPrecision, Kind, Planes};
+use mcdenoise_core::conv::{self, Activation, Conv2d};
+use mcdenoise_core::pool::{self, Reduce};
+use mcdenoise_core::softmax::{self, FusedInputs, WindowPath};
+use mcdenoise_core::{fixed, unfold, F16Arith, Fixed, Isa, F16};
+use mcdenoise_tests::{assert_close, isas_under_test, oracle, simd_isas, Img};
+use proptest::prelude::*;
+
+/// An image stored in precision `P` (its format chosen by the host policy).
+fn store<P: HostPrecision>(img: &Img, kind: Kind) -> Planes<P::Store> {
+    Planes::<P::Store>::encode_as::<P>(img.c, img.w, img.h, &img.data, kind)
+}
+
+/// The stored values as f64 (what the kernel really saw).
+fn seen<P: HostPrecision>(p: &Planes<P::Store>) -> Vec<f64> {
+    p.decode::<P>().iter().map(|&v| v as f64).collect()
+}
+
+/// An output buffer in `P` with the given format.
+fn out<P: HostPrecision>(c: usize, w: usize, h: usize, frac: i8) -> Planes<P::Store> {
+    Planes::<P::Store>::new(c, w, h).with_frac(frac)
+}
+
+/// Tolerance `(atol, rtol)` of precision `P` for a result built from `terms`
+/// products, on values of magnitude `mag`, stored with `frac` bits (fixed).
+fn tol<P: HostPrecision>(terms: usize, mag: f64, frac: i8) -> (f64, f64) {
+    let n = terms as f64;
+    match P::NAME {
+        "f16" => (1e-6 * mag, 1.0e-3),
+        "f16-arith" => (4e-3 * mag * n.sqrt(), 2e-3 * n.sqrt()),
+        _ => (4.0 * (-(frac as f64)).exp2() + 2e-4 * mag, 2e-3),
+    }
+}
+
+fn check_unfold<P: HostPrecision>(w: usize, h: usize, k: usize, seed: u64) {
+    // Normalised non-negative kernels (the softmax kernels' kind), radiance in [0, 8).
+    let mut kern = Img::random(k * k, w, h, 0.0, 1.0, seed);
+    let n = w * h;
+    for p in 0..n {
+        let s: f32 = (0..k * k).map(|j| kern.data[j * n + p]).sum();
+        for j in 0..k * k {
+            kern.data[j * n + p] /= s;
+        }
+    }
+    let src = Img::random(3, w, h, 0.0, 8.0, seed ^ 1);
+    let (ks, ss) = (store::<P>(&kern, Kind::Unit), store::<P>(&src, Kind::Image));
+    let want = oracle::unfold(k, &seen::<P>(&ks), &seen::<P>(&ss), 3, w, h);
+    for isa in isas_under_test() {
+        let mut o = out::<P>(3, w, h, ss.frac);
+        let mut scratch = vec![0.0; unfold::scratch_len::<P>(k, 3, w)];
+        unfold::apply::<P>(isa, k, &ks.view(), &ss.view(), &mut o.view_mut(), &mut scratch).unwrap();
+        let (a, r) = tol::<P>(k * k, 8.0, o.frac);
+        assert_close(&format!("{} unfold {isa:?} k={k}", P::NAME), &o.decode::<P>(), &want, a, r);
+    }
+}
+
+fn check_fused<P: HostPrecision>(w: usize, h: usize, m: usize, seed: u64) {
+    let sizes: Vec<usize> = (0..m).map(|i| 3 + 2 * i).collect();
+    let imp = Img::random(m, w, h, -12.0, 12.0, seed);
+    let fus = Img::random(m, w, h, -4.0, 4.0, seed ^ 1);
+    let alb = Img::random(3, w, h, 0.0, 1.0, seed ^ 2);
+    let rad = Img::random(3, w, h, 0.0, 16.0, seed ^ 3);
+    // Logits in Q7.8 for fixed point (the float precisions ignore the format).
+    let logit_store = |img: &Img| {
+        let frac = if P::NAME == "fixed" { fixed::LOGIT_FRAC } else { 0 };
+        let mut p = Planes::<P::Store>::new(img.c, img.w, img.h).with_frac(frac);
+        P::encode(&img.data, &mut p.data, frac);
+        p
+    };
+    let (is, fs) = (logit_store(&imp), logit_store(&fus));
+    let (als, rs) = (store::<P>(&alb, Kind::Unit), store::<P>(&rad, Kind::Image));
+    let want =
+        oracle::fused(&sizes, &seen::<P>(&is), Some(&seen::<P>(&fs)), Some(&seen::<P>(&als)), &seen::<P>(&rs), 3, w, h);
+    for isa in isas_under_test() {
+        for path in [WindowPath::Direct, WindowPath::BoxSum] {
+            let inp = FusedInputs {
+                sizes: &sizes,
+                importance: is.view(),
+                fusion: Some(fs.view()),
+                albedo: Some(als.view()),
+                radiance: rs.view(),
+            };
+            let mut o = out::<P>(3, w, h, rs.frac);
+            let mut scratch = vec![0.0; softmax::fused_scratch_len::<P>(path, &sizes, 3, w)];
+            softmax::fused_filter::<P>(isa, path, &inp, &mut o.view_mut(), 0, &mut scratch).unwrap();
+            let (a, r) = tol::<P>(sizes.iter().map(|k| k * k).max().unwrap_or(1), 16.0, o.frac);
+            // Fixed point: the weights come from a 1e-5 exp and 1/256-nat logits: looser relative bound.
+            let r = if P::NAME == "fixed" { 2e-2 } else { r };
+            assert_close(&format!("{} fused {isa:?} {path:?}", P::NAME), &o.decode::<P>(), &want, a, r);
+        }
+    }
+}
+
+fn check_pools<P: HostPrecision>(w: usize, h: usize, seed: u64) {
+    let src = Img::random(2, w, h, -4.0, 4.0, seed);
+    let ss = store::<P>(&src, Kind::Image);
+    let sv = seen::<P>(&ss);
+    let (wc, hc) = (pool::coarse(w), pool::coarse(h));
+    for isa in isas_under_test() {
+        for (op, max) in [(Reduce::Mean, false), (Reduce::Max, true)] {
+            let want = oracle::reduce2x2(&sv, 2, w, h, max);
+            let mut o = out::<P>(2, wc, hc, ss.frac);
+            pool::reduce2x2::<P>(isa, op, &ss.view(), &mut o.view_mut(), 0).unwrap();
+            let (a, r) = tol::<P>(4, 4.0, o.frac);
+            assert_close(&format!("{} {op:?} {isa:?}", P::NAME), &o.decode::<P>(), &want, a, r);
+        }
+        let coarse = Img::random(2, wc, hc, -4.0, 4.0, seed ^ 5);
+        let cs = store::<P>(&coarse, Kind::Image);
+        let alpha = Img::random(1, w, h, 0.0, 1.0, seed ^ 6);
+        let als = store::<P>(&alpha, Kind::Unit);
+        let want = oracle::composite(&sv, &seen::<P>(&cs), &seen::<P>(&als), 2, w, h);
+        // f - a D(f) + a c overshoots the inputs' range: one bit of headroom.
+        let mut o = out::<P>(2, w, h, ss.frac - 1);
+        pool::composite::<P>(isa, &ss.view(), &cs.view(), &als.view(), &mut o.view_mut(), 0).unwrap();
+        let (a, r) = tol::<P>(6, 8.0, o.frac);
+        assert_close(&format!("{} composite {isa:?}", P::NAME), &o.decode::<P>(), &want, a, r);
+    }
+}
+
+fn check_conv<P: HostPrecision>(w: usize, h: usize, k: usize, cin: usize, cout: usize, seed: u64) {
+    let src = Img::random(cin, w, h, -1.0, 1.0, seed);
+    let wts = Img::random(cout * cin * k * k, 1, 1, -0.3, 0.3, seed ^ 1);
+    let bias = Img::random(cout, 1, 1, -0.2, 0.2, seed ^ 2);
+    let ss = store::<P>(&src, Kind::Image);
+    // Weights: a format whose per-channel sum |w| fits the fixed bit budget.
+    let wfrac = if P::NAME == "fixed" { 10 } else { 0 };
+    let mut ws = vec![P::Store::default(); wts.data.len()];
+    P::encode(&wts.data, &mut ws, wfrac);
+    let mut wseen = vec![0.0f32; ws.len()];
+    P::decode(&ws, &mut wseen, wfrac);
+    let ofrac = if P::NAME == "fixed" { 11 } else { 0 };
+    let mut bs = vec![P::Store::default(); cout];
+    P::encode(&bias.data, &mut bs, ofrac);
+    let mut bseen = vec![0.0f32; cout];
+    P::decode(&bs, &mut bseen, ofrac);
+    let want = oracle::conv2d(
+        k,
+        cin,
+        cout,
+        &wseen.iter().map(|&v| v as f64).collect::<Vec<_>>(),
+        Some(&bseen.iter().map(|&v| v as f64).collect::<Vec<_>>()),
+        Some(0.1),
+        &seen::<P>(&ss),
+        w,
+        h,
+    );
+    let layer =
+        Conv2d { k, cin, cout, weights: &ws, bias: Some(&bs), act: Activation::LeakyRelu(0.1), weight_frac: wfrac };
+    for isa in isas_under_test() {
+        let mut o = out::<P>(cout, w, h, ofrac);
+        let mut scratch = vec![0.0; conv::conv2d_scratch_len::<P>(k, cin, cout, w)];
+        conv::conv2d::<P>(isa, &layer, &ss.view(), &mut o.view_mut(), 0, &mut scratch).unwrap();
+        let (a, r) = tol::<P>(cin * k * k, 3.0, o.frac);
+        assert_close(&format!("{} conv {isa:?} k={k}", P::NAME), &o.decode::<P>(), &want, a, r);
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 16, ..ProptestConfig::default() })]
+
+    #[test]
+    fn reduced_precision_unfold(w in 1usize..40, h in 1usize..20, k in prop_oneof![Just(3usize), Just(7), Just(13)], seed: u64) {
+        check_unfold::<F16>(w, h, k, seed);
+        check_unfold::<F16Arith>(w, h, k, seed);
+        check_unfold::<Fixed>(w, h, k, seed);
+    }
+
+    #[test]
+    fn reduced_precision_fused(w in 1usize..40, h in 1usize..30, m in 1usize..5, seed: u64) {
+        check_fused::<F16>(w, h, m, seed);
+        check_fused::<F16Arith>(w, h, m, seed);
+        check_fused::<Fixed>(w, h, m, seed);
+    }
+
+    #[test]
+    fn reduced_precision_pools(w in 1usize..60, h in 1usize..12, seed: u64) {
+        check_pools::<F16>(w, h, seed);
+        check_pools::<F16Arith>(w, h, seed);
+        check_pools::<Fixed>(w, h, seed);
+    }
+
+    #[test]
+    fn reduced_precision_conv(w in 1usize..40, h in 1usize..8, k in prop_oneof![Just(1usize), Just(3), Just(5)],
+                              cin in 1usize..15, cout in 1usize..15, seed: u64) {
+        check_conv::<F16>(w, h, k, cin, cout, seed);
+        check_conv::<F16Arith>(w, h, k, cin, cout, seed);
+        check_conv::<Fixed>(w, h, k, cin, cout, seed);
+    }
+}
+
+/// Fixed point: every SIMD path gives the scalar path's bits, at every width,
+/// with outputs pre-filled with different sentinels.
+#[test]
+fn fixed_simd_is_bit_identical_to_scalar() {
+    for isa in simd_isas() {
+        for w in 1..=70 {
+            for h in [1, 5, 17] {
+                let n = w * h;
+                let src = Img::random(3, w, h, -3.0, 3.0, (w * h) as u64);
+                let ss = store::<Fixed>(&src, Kind::Image);
+                for k in [1, 3, 7, 15] {
+                    let kern = Img::random(k * k, w, h, -1.5, 1.5, (w + k) as u64);
+                    let ks = store::<Fixed>(&kern, Kind::Unit);
+                    let run = |i: Isa, fill: i16| {
+                        let mut o = out::<Fixed>(3, w, h, ss.frac);
+                        o.data.fill(fill);
+                        unfold::apply::<Fixed>(i, k, &ks.view(), &ss.view(), &mut o.view_mut(), &mut []).unwrap();
+                        o.data
+                    };
+                    assert_eq!(run(Isa::Scalar, 1111), run(isa, -2222), "unfold {isa:?} {w}x{h} k={k}");
+                }
+                for (k, cin, cout) in [(3, 14, 14), (5, 3, 7), (1, 5, 2)] {
+                    let x = Img::random(cin, w, h, -1.0, 1.0, n as u64);
+                    let xs = store::<Fixed>(&x, Kind::Image);
+                    let wts = Img::random(cout * cin * k * k, 1, 1, -0.2, 0.2, cin as u64);
+                    let mut ws = vec![0i16; wts.data.len()];
+                    Fixed::encode(&wts.data, &mut ws, 10);
+                    let bias: Vec<i16> = (0..cout as i16).map(|i| i * 37 - 100).collect();
+                    for act in [Activation::Identity, Activation::Relu, Activation::LeakyRelu(0.1)] {
+                        let layer = Conv2d { k, cin, cout, weights: &ws, bias: Some(&bias), act, weight_frac: 10 };
+                        let run = |i: Isa, fill: i16| {
+                            let mut o = out::<Fixed>(cout, w, h, 11);
+                            o.data.fill(fill);
+                            conv::conv2d::<Fixed>(i, &layer, &xs.view(), &mut o.view_mut(), 0, &mut []).unwrap();
+                            o.data
+                        };
+                        assert_eq!(run(Isa::Scalar, 1111), run(isa, -2222), "conv {isa:?} {w}x{h} k={k} {act:?}");
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn fixed_conv_refuses_weights_over_the_bit_budget() {
+    let w = vec![30000i16; 9 * 2];
+    let layer = Conv2d { k: 3, cin: 2, cout: 1, weights: &w, bias: None, act: Activation::Identity, weight_frac: 14 };
+    let x = vec![0i16; 2 * 16];
+    let mut o = vec![0i16; 16];
+    let e = conv::conv2d::<Fixed>(
+        Isa::Scalar,
+        &layer,
+        &mcdenoise_core::View::new(&x, 2, 4, 4).unwrap(),
+        &mut mcdenoise_core::ViewMut::new(&mut o, 1, 4, 4).unwrap(),
+        0,
+        &mut [],
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("sum of |w|"), "{e}");
+}
