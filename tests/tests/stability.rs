@@ -24,7 +24,12 @@ use mcdenoise_tests::{isas_under_test, Img};
 const SIZES: [(usize, usize); 6] = [(1, 1), (1, 9), (9, 1), (2, 3), (13, 11), (40, 7)];
 
 /// Radiance cases: name and value generator (x, y) -> value.
-fn radiance_cases() -> Vec<(&'static str, Box<dyn Fn(usize, usize) -> f32>)> {
+/// A named value field `(x, y) -> value`.
+type Field = (&'static str, Box<dyn Fn(usize, usize) -> f32>);
+/// A named logit field `(plane, x, y) -> logit`.
+type LogitField = (&'static str, Box<dyn Fn(usize, usize, usize) -> f32>);
+
+fn radiance_cases() -> Vec<Field> {
     vec![
         ("zero", Box::new(|_, _| 0.0)),
         ("denormal", Box::new(|_, _| 1e-30)),
@@ -40,7 +45,7 @@ fn radiance_cases() -> Vec<(&'static str, Box<dyn Fn(usize, usize) -> f32>)> {
 }
 
 /// Logit cases.
-fn logit_cases() -> Vec<(&'static str, Box<dyn Fn(usize, usize, usize) -> f32>)> {
+fn logit_cases() -> Vec<LogitField> {
     vec![
         ("equal", Box::new(|_, _, _| 0.0)),
         ("pm1e4", Box::new(|c, x, y| if (c + x * 7 + y * 3) % 2 == 0 { 1e4 } else { -1e4 })),
