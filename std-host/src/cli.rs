@@ -28,6 +28,10 @@ usage:
       --half                     write f16 EXR (default f32)
       --png                      also write a tone-mapped PNG preview per frame
       --timings                  print per-stage times
+  mcdenoise precision [--frame FILE] [--size WxH] [--threads N] [--only OP,...] [--csv F] [--svg F]
+                                 time and error (against the f64 oracle) of every operator in every
+                                 precision and instruction set; CSV and an SVG plot (default under
+                                 ./mcdenoise-out/); 1 thread and 1280x720 unless told otherwise
   mcdenoise score --reference REF OUT [--json]
                                  REF and OUT: two files, or two directories (matched by name)
   mcdenoise help | --help | --version
@@ -52,6 +56,8 @@ pub enum Command {
         /// Machine-readable output.
         json: bool,
     },
+    /// The precision report.
+    Precision(crate::report::ReportArgs),
     /// Print usage.
     Help,
     /// Print the version.
@@ -166,6 +172,46 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
                 return Err(usage("denoise: no INPUT given (frame files or a directory)"));
             }
             Ok(Command::Denoise(DenoiseArgs { method, settings, inputs, outdir, half, png, timings }))
+        }
+        "precision" => {
+            let mut a = crate::report::ReportArgs {
+                frame: None,
+                csv: PathBuf::from("mcdenoise-out/precision.csv"),
+                svg: PathBuf::from("mcdenoise-out/precision.svg"),
+                threads: 1,
+                width: 1280,
+                height: 720,
+                only: Vec::new(),
+            };
+            while let Some(f) = it.next() {
+                let f = f.into_string().map_err(|_| usage("argument is not valid UTF-8"))?;
+                let v = text(&f, it.next())?;
+                match f.as_str() {
+                    "--frame" => a.frame = Some(PathBuf::from(v)),
+                    "--csv" => a.csv = PathBuf::from(v),
+                    "--svg" => a.svg = PathBuf::from(v),
+                    "--threads" => a.threads = number("--threads", &v, 1, 256)?,
+                    "--size" => {
+                        let (ws, hs) =
+                            v.split_once('x').ok_or_else(|| usage(format!("--size: expected WxH, got '{v}'")))?;
+                        a.width = number("--size width", ws, 1, 8192)?;
+                        a.height = number("--size height", hs, 1, 8192)?;
+                    }
+                    "--only" => {
+                        for op in v.split(',') {
+                            if !crate::report::OPS.contains(&op) {
+                                return Err(usage(format!(
+                                    "--only: unknown operator '{op}' (one of {})",
+                                    crate::report::OPS.join(", ")
+                                )));
+                            }
+                            a.only.push(op.to_string());
+                        }
+                    }
+                    _ => return Err(usage(format!("precision: unknown option '{f}'"))),
+                }
+            }
+            Ok(Command::Precision(a))
         }
         "score" => {
             let (mut reference, mut paths, mut json) = (None, Vec::new(), false);

@@ -13,6 +13,7 @@ pub mod oracle;
 pub mod output;
 pub mod par;
 pub mod precision;
+pub mod report;
 pub mod run;
 
 pub use error::{HostError, Result};

@@ -29,6 +29,7 @@ fn main() -> ExitCode {
         Ok(Command::Demo { settings }) => run::demo(&settings),
         Ok(Command::Denoise(a)) => run::denoise_cmd(&a),
         Ok(Command::Score { reference, output, json }) => run::score_cmd(&reference, &output, json),
+        Ok(Command::Precision(a)) => mcdenoise::report::run(&a).map(|_| ()),
         Err(e) => Err(e),
     };
     match result {

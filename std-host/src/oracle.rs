@@ -322,3 +322,120 @@ pub fn atrous_step(
     }
     out
 }
+
+/// The fused filter evaluated pixel by pixel without materialising kernel
+/// maps (for full-size frames): same definition as [`fused`].
+#[allow(clippy::too_many_arguments)]
+pub fn fused_pixelwise(
+    sizes: &[usize],
+    imp: &[f64],
+    fusion: Option<&[f64]>,
+    albedo: Option<&[f64]>,
+    rad: &[f64],
+    c: usize,
+    w: usize,
+    h: usize,
+) -> Vec<f64> {
+    let m = sizes.len();
+    let plane = w * h;
+    let mut out = vec![0.0; c * plane];
+    for y in 0..h {
+        for x in 0..w {
+            let p = y * w + x;
+            let alpha: Vec<f64> = match fusion {
+                Some(f) => {
+                    let mx = (0..m).map(|i| clamp_logit(f[i * plane + p])).fold(f64::NEG_INFINITY, f64::max);
+                    let e: Vec<f64> = (0..m).map(|i| (clamp_logit(f[i * plane + p]) - mx).exp()).collect();
+                    let s: f64 = e.iter().sum();
+                    e.iter().map(|v| v / s).collect()
+                }
+                None => vec![1.0; m],
+            };
+            for (i, &k) in sizes.iter().enumerate() {
+                let r = (k / 2) as isize;
+                let taps: Vec<(usize, usize)> = (-r..=r)
+                    .flat_map(|dy| (-r..=r).map(move |dx| (dy, dx)))
+                    .filter_map(|(dy, dx)| tap(y, x, dy, dx, w, h))
+                    .collect();
+                let mx = taps
+                    .iter()
+                    .map(|&(yy, xx)| clamp_logit(imp[i * plane + yy * w + xx]))
+                    .fold(f64::NEG_INFINITY, f64::max);
+                let mut den = 0.0;
+                let mut num = vec![0.0; c];
+                for &(yy, xx) in &taps {
+                    let q = yy * w + xx;
+                    let e = (clamp_logit(imp[i * plane + q]) - mx).exp();
+                    den += e;
+                    for ch in 0..c {
+                        num[ch] += e * rad[ch * plane + q];
+                    }
+                }
+                for ch in 0..c {
+                    out[ch * plane + p] += alpha[i] * num[ch] / den;
+                }
+            }
+            if let Some(a) = albedo {
+                for ch in 0..c {
+                    out[ch * plane + p] *= a[ch * plane + p];
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Temporal accumulation with motion vectors (no geometry tests), as defined
+/// in `mcdenoise_core::temporal`: bilinear taps of the previous colour at
+/// `p + motion`, in-image taps renormalised, `alpha = max(1/(n+1), alpha_min)`.
+#[allow(clippy::too_many_arguments)]
+pub fn temporal_motion(
+    color: &[f64],
+    motion: &[f64],
+    prev: &[f64],
+    prev_hist: &[f64],
+    alpha_min: f64,
+    c: usize,
+    w: usize,
+    h: usize,
+) -> Vec<f64> {
+    let plane = w * h;
+    let mut out = vec![0.0; c * plane];
+    for y in 0..h {
+        for x in 0..w {
+            let p = y * w + x;
+            let fx = x as f64 + motion[p];
+            let fy = y as f64 + motion[plane + p];
+            let (mut ws, mut n, mut acc) = (0.0, 0.0, vec![0.0; c]);
+            if fx > -1.0 && fy > -1.0 && fx < w as f64 && fy < h as f64 {
+                let (x0, y0) = (fx.floor(), fy.floor());
+                let (tx, ty) = (fx - x0, fy - y0);
+                for (dy, wy) in [(0.0, 1.0 - ty), (1.0, ty)] {
+                    for (dx, wx) in [(0.0, 1.0 - tx), (1.0, tx)] {
+                        let (py, px) = (y0 + dy, x0 + dx);
+                        let wt = wx * wy;
+                        if wt <= 0.0 || py < 0.0 || px < 0.0 || py >= h as f64 || px >= w as f64 {
+                            continue;
+                        }
+                        let q = py as usize * w + px as usize;
+                        ws += wt;
+                        n += wt * prev_hist[q];
+                        for ch in 0..c {
+                            acc[ch] += wt * prev[ch * plane + q];
+                        }
+                    }
+                }
+            }
+            for ch in 0..c {
+                out[ch * plane + p] = if ws > 0.0 {
+                    let n = (n / ws).max(0.0);
+                    let a = (1.0 / (n + 1.0)).max(alpha_min);
+                    a * color[ch * plane + p] + (1.0 - a) * acc[ch] / ws
+                } else {
+                    color[ch * plane + p]
+                };
+            }
+        }
+    }
+    out
+}

@@ -105,6 +105,11 @@ impl Pool {
         })
     }
 
+    /// `f(i)` for `i in 0..n` on the pool's threads, results in order.
+    pub fn map<T: Send>(&self, n: usize, f: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
+        self.pool.install(|| (0..n).into_par_iter().map(f).collect())
+    }
+
     /// Like [`Pool::bands`] for a kernel with two outputs of the same height
     /// (split into the same bands).
     pub fn bands2<T: Send, U: Send>(
