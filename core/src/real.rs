@@ -109,7 +109,21 @@ pub fn round16(v: f32) -> f32 {
     } else {
         v
     };
-    half::f16::from_f32(c).to_f32()
+    let a = f32::from_bits(c.to_bits() & 0x7fff_ffff);
+    if !(a >= 6.103_515_6e-5) {
+        // f16 subnormals (and 0, NaN): multiples of 2^-24; adding and
+        // subtracting 0.75 = 1.5 * 2^(-24 + 23) rounds to them, ties to even;
+        // the sign is put back (so -tiny rounds to -0, as half does).
+        if c.is_nan() {
+            return c;
+        }
+        let q = (a + 0.75) - 0.75;
+        return f32::from_bits(q.to_bits() | (c.to_bits() & 0x8000_0000));
+    }
+    // Normal range: round the f32 mantissa to f16's 10 bits, ties to even.
+    let b = c.to_bits();
+    let r = b.wrapping_add(0x0fff + ((b >> 13) & 1)) & 0xffff_e000;
+    f32::from_bits(r)
 }
 
 impl Add for H {

@@ -460,7 +460,10 @@ fn measure<P: HostPrecision>(
     };
     loop {
         times.push(run(&mut out, &mut scratch)?);
-        if times.len() >= reps_cap || (times.len() >= 2 && start.elapsed() > Duration::from_secs(2)) {
+        if times.len() >= reps_cap
+            || (times.len() >= 2 && start.elapsed() > Duration::from_secs(2))
+            || start.elapsed() > Duration::from_secs(1)
+        {
             break;
         }
     }

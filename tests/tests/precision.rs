@@ -226,7 +226,8 @@ fn fixed_simd_is_bit_identical_to_scalar() {
                         let run = |i: Isa, fill: i16| {
                             let mut o = out::<Fixed>(cout, w, h, 11);
                             o.data.fill(fill);
-                            conv::conv2d::<Fixed>(i, &layer, &xs.view(), &mut o.view_mut(), 0, &mut []).unwrap();
+                            let mut sc = vec![0.0; conv::conv2d_scratch_len::<Fixed>(k, cin, cout, w)];
+                            conv::conv2d::<Fixed>(i, &layer, &xs.view(), &mut o.view_mut(), 0, &mut sc).unwrap();
                             o.data
                         };
                         assert_eq!(run(Isa::Scalar, 1111), run(isa, -2222), "conv {isa:?} {w}x{h} k={k} {act:?}");
@@ -253,4 +254,29 @@ fn fixed_conv_refuses_weights_over_the_bit_budget() {
     )
     .unwrap_err();
     assert!(e.to_string().contains("sum of |w|"), "{e}");
+}
+
+/// The f16 rounding of the f16-arithmetic precision equals `half`'s
+/// conversion (ties to even) everywhere below the saturation point.
+#[test]
+fn round16_matches_half() {
+    let mut r = 0x1234_5678u32;
+    for i in 0..2_000_000u32 {
+        r ^= r << 13;
+        r ^= r >> 17;
+        r ^= r << 5;
+        let v = match i % 4 {
+            0 => f32::from_bits(r),
+            1 => (r as f32 / u32::MAX as f32 - 0.5) * 1e-3,
+            2 => (r as f32 / u32::MAX as f32 - 0.5) * 1.3e5,
+            _ => f32::from_bits((r & 0x807f_ffff) | (((r >> 23) % 40 + 100) << 23)),
+        };
+        let want = if v.is_nan() {
+            continue;
+        } else {
+            half::f16::from_f32(v.clamp(-65504.0, 65504.0)).to_f32()
+        };
+        let got = mcdenoise_core::real::round16(v);
+        assert_eq!(got.to_bits(), want.to_bits(), "{v:e}");
+    }
 }

@@ -154,8 +154,9 @@ float_conv!(F16, f32);
 float_conv!(F16Arith, crate::real::H);
 
 impl ConvPrecision for Fixed {
-    fn scratch_len_impl(_k: usize, _cin: usize, _cout: usize, _width: usize) -> usize {
-        0
+    /// Packed weight pairs (one i32 per output channel and tap pair).
+    fn scratch_len_impl(k: usize, cin: usize, cout: usize, _width: usize) -> usize {
+        cout.saturating_mul(cin.saturating_mul(k * k).div_ceil(2))
     }
     /// The bit budget: with inputs in `[-32767, 32767]`, every output
     /// channel's `sum |w|` up to 65535 keeps the exact i32 sum below 2^31.
@@ -178,9 +179,9 @@ impl ConvPrecision for Fixed {
         src: &View<'_, i16>,
         dst: &mut ViewMut<'_, i16>,
         y0: usize,
-        _scratch: &mut [f32],
+        scratch: &mut [f32],
     ) {
-        fixed::forward(isa, layer, src, dst, y0)
+        fixed::forward(isa, layer, src, dst, y0, bytemuck::cast_slice_mut(scratch))
     }
 }
 

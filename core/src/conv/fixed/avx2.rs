@@ -1,60 +1,109 @@
 //! AVX2 fixed-point convolution: taps `t` of the flattened `(ci, ky, kx)`
 //! index go in pairs; the two input rows are interleaved (`vpunpck[lh]wd`)
-//! and each output channel's packed weight pair multiplies-and-adds them
-//! (`vpmaddwd`: 16 products per instruction, twice FMA's 8). Blocks of up to
-//! six output channels times sixteen pixels in twelve accumulators; border
-//! columns use the scalar pixel.
+//! and multiplied-and-added (`vpmaddwd`: 16 products per instruction, twice
+//! FMA's 8) with each output channel's weight pair, packed once per set of
+//! valid tap rows into the scratch and broadcast from memory. Blocks of up to
+//! six output channels times sixteen pixels live in twelve accumulators;
+//! border columns use the scalar pixel.
 
 use core::arch::x86_64::*;
 
 use super::{finish, scalar, shift};
 use crate::conv::{Activation, Conv2d};
-use crate::fixed::{KERNEL_FRAC, QMAX};
+use crate::fixed::{ld, KERNEL_FRAC, QMAX};
 use crate::view::{View, ViewMut};
 
 const MAX_OB: usize = 6;
 
+/// One valid tap of an output row: input plane, input row, column offset.
+#[derive(Clone, Copy, Default)]
+struct Tap {
+    ci: usize,
+    sy: usize,
+    kx: usize,
+}
+
 /// # Safety
 /// AVX2 must be supported.
 #[target_feature(enable = "avx2,fma")]
-pub(crate) unsafe fn forward(layer: &Conv2d<'_, i16>, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>, y0: usize) {
+pub(crate) unsafe fn forward(
+    layer: &Conv2d<'_, i16>,
+    src: &View<'_, i16>,
+    dst: &mut ViewMut<'_, i16>,
+    y0: usize,
+    packed: &mut [i32],
+) {
     let (w, h) = (src.width(), src.height());
     let k = layer.k;
     let p = k / 2;
     let s = shift(layer, src, dst);
+    let per = layer.cin * k * k;
     let nblocks = layer.cout.div_ceil(MAX_OB);
     // acc + 2^(s-1) stays below 2^31 for s <= 15 under the layer's bit budget.
     let vec_ok = s > 0 && s <= 15;
+    let mut taps = [Tap::default(); 16 * 25];
+    let mut packed_for = None::<(usize, usize)>;
     for yo in 0..dst.height() {
         let y = y0 + yo;
-        // The taps of this row that stay inside the image: (plane, row offset, column offset).
-        let mut taps = [(0usize, 0usize, 0usize, 0usize); 16 * 25];
+        let ky_lo = p.saturating_sub(y);
+        let ky_hi = k.min(h + p - y);
+        // The valid taps of this row, in (ci, ky, kx) order.
         let mut nt = 0;
         for ci in 0..layer.cin {
-            for ky in 0..k {
-                let Some(sy) = (y + ky).checked_sub(p).filter(|&v| v < h) else { continue };
+            for ky in ky_lo..ky_hi {
                 for kx in 0..k {
                     if nt < taps.len() {
-                        taps[nt] = (ci, sy, kx, (ci * k + ky) * k + kx);
+                        taps[nt] = Tap { ci, sy: y + ky - p, kx };
                     }
                     nt += 1;
                 }
             }
         }
-        let fits = nt <= taps.len();
+        let fits = nt <= taps.len() && nt.div_ceil(2) * layer.cout <= packed.len();
+        if vec_ok && fits && packed_for != Some((ky_lo, ky_hi)) {
+            // Weight pairs of the valid taps, per output channel: (w_2i, w_2i+1) as one i32.
+            let npairs = nt.div_ceil(2);
+            for co in 0..layer.cout {
+                let mut t = 0;
+                let widx = |n: usize| -> i32 {
+                    if n >= nt {
+                        return 0;
+                    }
+                    let (ci, r) = (n / ((ky_hi - ky_lo) * k), n % ((ky_hi - ky_lo) * k));
+                    let (ky, kx) = (ky_lo + r / k, r % k);
+                    ld(layer.weights[co * per + (ci * k + ky) * k + kx])
+                };
+                for pi in 0..npairs {
+                    let (a, b) = (widx(t), widx(t + 1));
+                    packed[co * npairs + pi] = ((a as u16 as u32) | ((b as u16 as u32) << 16)) as i32;
+                    t += 2;
+                }
+            }
+            packed_for = Some((ky_lo, ky_hi));
+        }
+        let npairs = nt.div_ceil(2);
         let mut co0 = 0;
         for b in 0..nblocks {
             let ob = layer.cout / nblocks + usize::from(b < layer.cout % nblocks);
             let mut x = p;
             if vec_ok && fits {
+                let ctx = Block { src, taps: &taps[..nt], packed: &packed[co0 * npairs..], npairs, x: 0, s, p };
                 macro_rules! run {
-                    ($ob:literal) => {
+                    ($ob:literal) => {{
                         while x + 16 + p <= w {
                             // SAFETY: columns x - p .. x + 16 + p are inside the row.
-                            unsafe { block::<$ob>(layer, src, dst, &taps[..nt], co0, yo, x, s) };
+                            unsafe { block::<$ob>(layer, &Block { x, ..ctx }, dst, co0, yo) };
                             x += 16;
                         }
-                    };
+                        // The tail: one more block ending at the last interior column,
+                        // overlapping the previous one (same values written twice).
+                        if x < w - p && w >= 16 + 2 * p {
+                            let xl = w - p - 16;
+                            // SAFETY: as above.
+                            unsafe { block::<$ob>(layer, &Block { x: xl, ..ctx }, dst, co0, yo) };
+                            x = w - p;
+                        }
+                    }};
                 }
                 match ob {
                     1 => run!(1),
@@ -76,6 +125,22 @@ pub(crate) unsafe fn forward(layer: &Conv2d<'_, i16>, src: &View<'_, i16>, dst: 
     }
 }
 
+struct Block<'c, 'a> {
+    src: &'c View<'a, i16>,
+    taps: &'c [Tap],
+    packed: &'c [i32],
+    npairs: usize,
+    x: usize,
+    s: i32,
+    p: usize,
+}
+
+impl Clone for Block<'_, '_> {
+    fn clone(&self) -> Self {
+        Block { ..*self }
+    }
+}
+
 #[inline(always)]
 unsafe fn ld16(p: *const i16) -> __m256i {
     // SAFETY: the caller guarantees 16 readable values; -32768 reads as -32767.
@@ -83,60 +148,47 @@ unsafe fn ld16(p: *const i16) -> __m256i {
 }
 
 /// # Safety
-/// AVX2; columns `x - p .. x + 16 + p` inside the image; `0 < s <= 15`.
+/// AVX2; columns `x - p .. x + 16 + p` inside the image; `0 < s <= 15`;
+/// `packed` holds `OB * npairs` pairs.
 #[inline]
 #[target_feature(enable = "avx2,fma")]
-#[allow(clippy::too_many_arguments)]
 unsafe fn block<const OB: usize>(
     layer: &Conv2d<'_, i16>,
-    src: &View<'_, i16>,
+    b: &Block<'_, '_>,
     dst: &mut ViewMut<'_, i16>,
-    taps: &[(usize, usize, usize, usize)],
     co0: usize,
     yo: usize,
-    x: usize,
-    s: i32,
 ) {
-    let k = layer.k;
-    let p = k / 2;
-    let per = layer.cin * k * k;
     let zero = _mm256_setzero_si256();
     let mut lo = [zero; OB];
     let mut hi = [zero; OB];
-    let load = |t: usize| -> (__m256i, usize) {
-        match taps.get(t) {
+    let (x, p) = (b.x, b.p);
+    let load = |t: usize| -> __m256i {
+        match b.taps.get(t) {
             // SAFETY: in range (caller).
-            Some(&(ci, sy, kx, widx)) => (unsafe { ld16(src.ptr(ci, sy).add(x + kx - p)) }, widx),
-            None => (zero, usize::MAX),
+            Some(tp) => unsafe { ld16(b.src.ptr(tp.ci, tp.sy).add(x + tp.kx - p)) },
+            None => zero,
         }
     };
-    let wt = |co: usize, widx: usize| -> i32 {
-        if widx == usize::MAX {
-            0
-        } else {
-            crate::fixed::ld(layer.weights[co * per + widx])
-        }
-    };
-    let mut t = 0;
-    while t < taps.len() {
-        let (xa, wa) = load(t);
-        let (xb, wb) = load(t + 1);
+    assert!(b.packed.len() >= OB * b.npairs);
+    let wp = b.packed.as_ptr();
+    for pi in 0..b.npairs {
+        let (xa, xb) = (load(2 * pi), load(2 * pi + 1));
         let il = _mm256_unpacklo_epi16(xa, xb);
         let ih = _mm256_unpackhi_epi16(xa, xb);
         for o in 0..OB {
-            let co = co0 + o;
-            let pair = (wt(co, wa) as u16 as u32) | ((wt(co, wb) as u16 as u32) << 16);
-            let wv = _mm256_set1_epi32(pair as i32);
+            // SAFETY: o * npairs + pi < OB * npairs <= packed.len() (asserted).
+            let wv = _mm256_set1_epi32(unsafe { *wp.add(o * b.npairs + pi) });
             lo[o] = _mm256_add_epi32(lo[o], _mm256_madd_epi16(il, wv));
             hi[o] = _mm256_add_epi32(hi[o], _mm256_madd_epi16(ih, wv));
         }
-        t += 2;
     }
+    let s = b.s;
     let half = _mm256_set1_epi32(1 << (s - 1));
     let sh = _mm_cvtsi32_si128(s);
     for o in 0..OB {
         let co = co0 + o;
-        let bias = _mm256_set1_epi32(layer.bias.map_or(0, |b| crate::fixed::ld(b[co])));
+        let bias = _mm256_set1_epi32(layer.bias.map_or(0, |bb| ld(bb[co])));
         let lim = _mm256_set1_epi32(super::PRE_ACT_MAX as i32);
         let nlim = _mm256_set1_epi32(-super::PRE_ACT_MAX as i32);
         let clampv = |v: __m256i| _mm256_max_epi32(_mm256_min_epi32(v, lim), nlim);

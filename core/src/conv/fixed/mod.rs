@@ -13,12 +13,22 @@ pub(crate) mod scalar;
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod avx2;
 
-pub(crate) fn forward(isa: Isa, layer: &Conv2d<'_, i16>, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>, y0: usize) {
+pub(crate) fn forward(
+    isa: Isa,
+    layer: &Conv2d<'_, i16>,
+    src: &View<'_, i16>,
+    dst: &mut ViewMut<'_, i16>,
+    y0: usize,
+    scratch: &mut [i32],
+) {
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked support.
-        Isa::Avx2 => unsafe { avx2::forward(layer, src, dst, y0) },
-        _ => scalar::forward(layer, src, dst, y0),
+        Isa::Avx2 => unsafe { avx2::forward(layer, src, dst, y0, scratch) },
+        _ => {
+            let _ = scratch;
+            scalar::forward(layer, src, dst, y0)
+        }
     }
 }
 

@@ -22,10 +22,17 @@ pub(crate) unsafe fn run(k: usize, kernel: &View<'_, i16>, src: &View<'_, i16>, 
         for c in 0..ch {
             let mut x = 0;
             while x < w {
-                if interior_row && x >= r && x + 16 + r <= w {
+                let vec = interior_row && x >= r && w >= 16 + 2 * r;
+                if vec && x + 16 + r <= w {
                     // SAFETY: all taps of pixels x .. x + 16 lie inside the image.
                     unsafe { interior16(k, kernel, src, dst, c, y, yo, x, shift) };
                     x += 16;
+                } else if vec && x < w - r {
+                    // The tail: one block ending at the last interior column,
+                    // overlapping the previous one (same values written twice).
+                    // SAFETY: as above.
+                    unsafe { interior16(k, kernel, src, dst, c, y, yo, w - r - 16, shift) };
+                    x = w - r;
                 } else {
                     let v = scalar::pixel(k, kernel, src, c, y, x);
                     dst.row_mut(c, yo)[x] = sat16(shr_round(v as i64, shift));
