@@ -14,7 +14,7 @@ use mcdenoise_core::conv::{self, Activation, Conv2d};
 use mcdenoise_core::pool;
 use mcdenoise_core::softmax::{self, FusedInputs, WindowPath};
 use mcdenoise_core::tonemap::{self, Map};
-use mcdenoise_core::{unfold, Isa, View, ViewMut, F32};
+use mcdenoise_core::{unfold, Fixed, Isa, View, ViewMut, F16, F32};
 
 const PLANE: usize = W * H;
 
@@ -90,6 +90,39 @@ fn bench_unfold(c: &mut Criterion) {
                     let dst = ViewMut::new(&mut out, 3, W, H).unwrap();
                     p.bands(dst, 1, &mut scratch, len, |band, y0, s| {
                         unfold::apply_rows::<F32>(isa, 7, &kv, &sv, band, y0, s)
+                    })
+                    .unwrap()
+                })
+            });
+        }
+    }
+    // f16 storage and fixed point: half the bytes of the kernel map.
+    let kern16: Vec<half::f16> = kern.iter().map(|&v| half::f16::from_f32(v)).collect();
+    let src16: Vec<half::f16> = src.iter().map(|&v| half::f16::from_f32(v)).collect();
+    let mut out16 = vec![half::f16::ZERO; 3 * PLANE];
+    let (kv16, sv16) = (View::new(&kern16, 49, W, H).unwrap(), View::new(&src16, 3, W, H).unwrap());
+    let kq: Vec<i16> = kern.iter().map(|&v| (v * 16384.0).round() as i16).collect();
+    let sq: Vec<i16> = src.iter().map(|&v| (v * 4096.0).round() as i16).collect();
+    let mut outq = vec![0i16; 3 * PLANE];
+    let (kvq, svq) = (View::new(&kq, 49, W, H).unwrap().with_frac(14), View::new(&sq, 3, W, H).unwrap().with_frac(12));
+    for isa in isas() {
+        for p in pools() {
+            let mut scratch = Scratch::new();
+            let len = unfold::scratch_len::<F16>(7, 3, W);
+            g.bench_function(BenchmarkId::new(format!("f16/{}", isa.name()), format!("{}t", p.threads())), |b| {
+                b.iter(|| {
+                    let dst = ViewMut::new(&mut out16, 3, W, H).unwrap();
+                    p.bands(dst, 1, &mut scratch, len, |band, y0, s| {
+                        unfold::apply_rows::<F16>(isa, 7, &kv16, &sv16, band, y0, s)
+                    })
+                    .unwrap()
+                })
+            });
+            g.bench_function(BenchmarkId::new(format!("fixed/{}", isa.name()), format!("{}t", p.threads())), |b| {
+                b.iter(|| {
+                    let dst = ViewMut::new(&mut outq, 3, W, H).unwrap().with_frac(12);
+                    p.bands(dst, 1, &mut scratch, 0, |band, y0, s| {
+                        unfold::apply_rows::<Fixed>(isa, 7, &kvq, &svq, band, y0, s)
                     })
                     .unwrap()
                 })

@@ -117,7 +117,7 @@ impl FloatElement for half::f16 {
     const IS_F16: bool = true;
     #[inline(always)]
     fn to_f32(self) -> f32 {
-        half::f16::to_f32(self)
+        f16_to_f32(self.to_bits())
     }
     #[inline(always)]
     fn from_f32(v: f32) -> Self {
@@ -141,3 +141,21 @@ where
 }
 impl FloatPrecision for F32 {}
 impl FloatPrecision for F16 {}
+
+/// Exact f16 -> f32 widening in a few integer operations, inlined (the
+/// `half` crate may call out of line per element).
+#[inline(always)]
+pub fn f16_to_f32(h: u16) -> f32 {
+    let sign = ((h as u32) & 0x8000) << 16;
+    let exp = ((h >> 10) & 0x1f) as u32;
+    let man = (h & 0x3ff) as u32;
+    let bits = if exp == 0 {
+        // Zero and subnormals: man * 2^-24, exact in f32.
+        return f32::from_bits(sign | (man as f32 * 5.960_464_5e-8).to_bits());
+    } else if exp == 31 {
+        sign | 0x7f80_0000 | (man << 13)
+    } else {
+        sign | ((exp + 112) << 23) | (man << 13)
+    };
+    f32::from_bits(bits)
+}

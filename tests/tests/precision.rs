@@ -280,3 +280,12 @@ fn round16_matches_half() {
         assert_eq!(got.to_bits(), want.to_bits(), "{v:e}");
     }
 }
+
+#[test]
+fn f16_widening_matches_half_for_every_bit_pattern() {
+    for b in 0..=u16::MAX {
+        let want = half::f16::from_bits(b).to_f32();
+        let got = mcdenoise_core::precision::f16_to_f32(b);
+        assert!(got.to_bits() == want.to_bits() || (got.is_nan() && want.is_nan()), "{b:#06x}: {got} vs {want}");
+    }
+}

@@ -42,8 +42,8 @@ pub trait UnfoldPrecision: Precision + Sealed {
 macro_rules! float_unfold {
     ($p:ty, $a:ty) => {
         impl UnfoldPrecision for $p {
-            fn scratch_len_impl(_k: usize, channels: usize, width: usize) -> usize {
-                channels.saturating_mul(width)
+            fn scratch_len_impl(k: usize, channels: usize, width: usize) -> usize {
+                float::scratch_len::<<$p as Precision>::Store>(k, channels, width)
             }
             fn apply_impl(
                 isa: Isa,

@@ -1,8 +1,14 @@
 //! AVX2 + FMA unfold. Rows whose taps all stay inside the image run a
 //! register-blocked kernel: eight output pixels, every tap, up to four
 //! channels accumulated in registers, so each kernel plane is read once and
-//! nothing is stored until the pixel is finished. Border rows, border columns
-//! and the tail of a row fall back to the scalar code (same tap order).
+//! nothing is stored until the pixel is finished; the row's last chunk
+//! overlaps the one before (same values written twice) instead of falling to
+//! scalar code. Border rows and the `k/2` border columns use the scalar code
+//! (same tap order).
+//!
+//! With f16 storage the source rows are widened to f32 once, into a ring of
+//! `k` rows in the scratch, so each source value is converted once instead of
+//! once per tap (`k^2` times); the kernel map is converted as it streams.
 
 use core::arch::x86_64::*;
 
@@ -10,6 +16,40 @@ use super::scalar;
 use crate::precision::FloatElement;
 use crate::simd::avx2::{load8, store8};
 use crate::view::{View, ViewMut};
+
+/// How far ahead (in elements) the kernel planes are prefetched.
+const PREFETCH: usize = 64;
+
+/// Scratch words of the AVX2 path: the scalar row accumulator, plus (f16)
+/// the ring of widened source rows.
+pub(crate) fn scratch_len(k: usize, channels: usize, width: usize, f16: bool) -> usize {
+    let row = channels.saturating_mul(width);
+    if f16 {
+        row.saturating_mul(k + 1)
+    } else {
+        row
+    }
+}
+
+/// Widens row `sy` of every channel into ring slot `sy % k`.
+#[target_feature(enable = "avx2,fma,f16c")]
+fn fill_slot<S: FloatElement>(src: &View<'_, S>, sy: usize, k: usize, ring: &mut [f32]) {
+    let (w, ch) = (src.width(), src.channels());
+    let slot = sy % k;
+    for c in 0..ch {
+        let row = src.row(c, sy);
+        let out = &mut ring[(slot * ch + c) * w..(slot * ch + c + 1) * w];
+        let mut x = 0;
+        while x + 8 <= w {
+            // SAFETY: x + 8 <= w for both rows.
+            unsafe { _mm256_storeu_ps(out.as_mut_ptr().add(x), load8(row.as_ptr().add(x))) };
+            x += 8;
+        }
+        for x in x..w {
+            out[x] = row[x].to_f32();
+        }
+    }
+}
 
 /// # Safety
 /// The CPU must support AVX2, FMA and F16C.
@@ -24,35 +64,59 @@ pub(crate) unsafe fn run<S: FloatElement>(
 ) {
     let (w, h, ch) = (src.width(), src.height(), src.channels());
     let r = k / 2;
+    let (acc, ring) = scratch.split_at_mut(ch * w);
+    let mut held = [usize::MAX; 16]; // image row in each ring slot
     for yo in 0..dst.height() {
         let y = y0 + yo;
         if y < r || y + r >= h || w < k + 8 {
-            scalar::row::<S, f32>(k, kernel, src, dst, y0, yo, scratch);
+            scalar::row::<S, f32>(k, kernel, src, dst, y0, yo, acc);
             continue;
+        }
+        // Row pointers of the k source rows, per channel.
+        let mut srows = [[core::ptr::null::<f32>(); 15]; 4];
+        let mut srows_s = [[core::ptr::null::<S>(); 15]; 4];
+        if S::IS_F16 {
+            for sy in y - r..=y + r {
+                if held[sy % k] != sy {
+                    fill_slot(src, sy, k, ring);
+                    held[sy % k] = sy;
+                }
+            }
         }
         let mut c0 = 0;
         while c0 < ch {
             let n = (ch - c0).min(4);
-            // SAFETY: y is an interior row and w >= k + 8 (checked above).
-            let done = unsafe {
-                match (k, n) {
-                    (1, _) => interior_dyn::<S>(k, n, kernel, src, dst, y, yo, c0),
-                    (3, 3) => interior::<S, 3, 3>(kernel, src, dst, y, yo, c0),
-                    (5, 3) => interior::<S, 5, 3>(kernel, src, dst, y, yo, c0),
-                    (7, 1) => interior::<S, 7, 1>(kernel, src, dst, y, yo, c0),
-                    (7, 2) => interior::<S, 7, 2>(kernel, src, dst, y, yo, c0),
-                    (7, 3) => interior::<S, 7, 3>(kernel, src, dst, y, yo, c0),
-                    (7, 4) => interior::<S, 7, 4>(kernel, src, dst, y, yo, c0),
-                    (9, 3) => interior::<S, 9, 3>(kernel, src, dst, y, yo, c0),
-                    (11, 3) => interior::<S, 11, 3>(kernel, src, dst, y, yo, c0),
-                    (13, 3) => interior::<S, 13, 3>(kernel, src, dst, y, yo, c0),
-                    (15, 3) => interior::<S, 15, 3>(kernel, src, dst, y, yo, c0),
-                    _ => interior_dyn::<S>(k, n, kernel, src, dst, y, yo, c0),
+            for c in 0..n {
+                for ky in 0..k {
+                    let sy = y - r + ky;
+                    if S::IS_F16 {
+                        srows[c][ky] = ring[((sy % k) * ch + c0 + c) * w..].as_ptr();
+                    } else {
+                        srows_s[c][ky] = src.ptr(c0 + c, sy);
+                    }
                 }
+            }
+            // Vector chunks over [r, w - r), the last one overlapping.
+            let chunk = |x: usize, wide: bool, dst: &mut ViewMut<'_, S>| {
+                // SAFETY: y is an interior row and columns x - r .. x + 8 (16) + r are inside.
+                unsafe { dispatch(k, n, wide, kernel, &srows, &srows_s, dst, y, yo, c0, x) }
             };
-            // Left border, and right border plus the tail the vector loop left.
+            // Sixteen pixels a step (two independent FMA chains per channel),
+            // then eight, then one last eight overlapping.
+            let mut x = r;
+            while x + 16 + r <= w {
+                chunk(x, true, dst);
+                x += 16;
+            }
+            while x + 8 + r <= w {
+                chunk(x, false, dst);
+                x += 8;
+            }
+            if x < w - r {
+                chunk(w - r - 8, false, dst);
+            }
             for c in c0..c0 + n {
-                for x in (0..r).chain(done..w) {
+                for x in (0..r).chain(w - r..w) {
                     let v = scalar::pixel(k, kernel, src, c, y, x);
                     dst.row_mut(c, yo)[x] = S::from_f32(v);
                 }
@@ -62,108 +126,102 @@ pub(crate) unsafe fn run<S: FloatElement>(
     }
 }
 
-/// How far ahead (in elements) the kernel planes are prefetched.
-const PREFETCH: usize = 64;
-
-/// Interior pixels `r ..` of row `y`, eight at a time, channels `c0 .. c0 + N`;
-/// returns the first x not written.
+/// [`chunk8`] for the run-time `k` and channel count `n`.
 ///
 /// # Safety
-/// AVX2/FMA/F16C; `r <= y < h - r`; `w >= K + 8`.
+/// As for [`chunk8`].
 #[target_feature(enable = "avx2,fma,f16c")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn interior<S: FloatElement, const K: usize, const N: usize>(
-    kernel: &View<'_, S>,
-    src: &View<'_, S>,
-    dst: &mut ViewMut<'_, S>,
-    y: usize,
-    yo: usize,
-    c0: usize,
-) -> usize {
-    let r = K / 2;
-    let w = src.width();
-    let kp = kernel.ptr(0, y);
-    let kstride = kernel.plane_stride();
-    let sstride = src.row_stride();
-    let sp: [*const S; N] = core::array::from_fn(|c| src.ptr(c0 + c, y - r));
-    let dp: [*mut S; N] = core::array::from_fn(|c| dst.ptr_mut(c0 + c, yo));
-    let mut x = r;
-    while x + 8 + r <= w {
-        if x % 16 < 8 {
-            // Every kernel plane is its own stream; 49 of them are more than the
-            // hardware prefetchers follow. Fetch each plane's line PREFETCH floats ahead.
-            for j in 0..K * K {
-                let ahead = kp.wrapping_add(j * kstride + x + PREFETCH) as *const i8;
-                _mm_prefetch::<_MM_HINT_T0>(ahead);
-            }
-        }
-        let mut acc = [_mm256_setzero_ps(); N];
-        for ky in 0..K {
-            for kx in 0..K {
-                // SAFETY: plane ky*K+kx exists and x + 8 <= w.
-                let kv = unsafe { load8(kp.add((ky * K + kx) * kstride + x)) };
-                for c in 0..N {
-                    // SAFETY: row y - r + ky < h, columns x - r + kx .. + 8 <= w.
-                    let sv = unsafe { load8(sp[c].add(ky * sstride + x + kx - r)) };
-                    acc[c] = _mm256_fmadd_ps(kv, sv, acc[c]);
-                }
-            }
-        }
-        for c in 0..N {
-            // SAFETY: x + 8 <= w.
-            unsafe { store8(dp[c].add(x), acc[c]) };
-        }
-        x += 8;
-    }
-    x
-}
-
-/// Same as [`interior`] for any `k` and up to four channels, with run-time loop bounds.
-///
-/// # Safety
-/// As for [`interior`].
-#[target_feature(enable = "avx2,fma,f16c")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn interior_dyn<S: FloatElement>(
+unsafe fn dispatch<S: FloatElement>(
     k: usize,
     n: usize,
+    wide: bool,
     kernel: &View<'_, S>,
-    src: &View<'_, S>,
+    srows: &[[*const f32; 15]; 4],
+    srows_s: &[[*const S; 15]; 4],
     dst: &mut ViewMut<'_, S>,
     y: usize,
     yo: usize,
     c0: usize,
-) -> usize {
-    let r = k / 2;
-    let w = src.width();
+    x: usize,
+) {
+    macro_rules! go {
+        ($($kk:literal),*) => {
+            match (k, n, wide) {
+                $(
+                    ($kk, 1, false) => chunk8::<S, $kk, 1, 1>(kernel, srows, srows_s, dst, y, yo, c0, x),
+                    ($kk, 2, false) => chunk8::<S, $kk, 2, 1>(kernel, srows, srows_s, dst, y, yo, c0, x),
+                    ($kk, 3, false) => chunk8::<S, $kk, 3, 1>(kernel, srows, srows_s, dst, y, yo, c0, x),
+                    ($kk, _, false) => chunk8::<S, $kk, 4, 1>(kernel, srows, srows_s, dst, y, yo, c0, x),
+                    ($kk, 1, true) => chunk8::<S, $kk, 1, 2>(kernel, srows, srows_s, dst, y, yo, c0, x),
+                    ($kk, 2, true) => chunk8::<S, $kk, 2, 2>(kernel, srows, srows_s, dst, y, yo, c0, x),
+                    ($kk, 3, true) => chunk8::<S, $kk, 3, 2>(kernel, srows, srows_s, dst, y, yo, c0, x),
+                    ($kk, _, true) => chunk8::<S, $kk, 4, 2>(kernel, srows, srows_s, dst, y, yo, c0, x),
+                )*
+                _ => unreachable!("k is checked odd in 1..=15"),
+            }
+        };
+    }
+    // SAFETY: forwarded from the caller.
+    unsafe { go!(1, 3, 5, 7, 9, 11, 13, 15) }
+}
+
+/// `8 V` interior pixels from `x` of row `y`, channels `c0 .. c0 + N`.
+/// Source rows come from `srows` (widened f32) for f16 storage, `srows_s`
+/// (the storage itself) otherwise.
+///
+/// # Safety
+/// AVX2/FMA/F16C; every tap of the eight pixels inside the image; the row
+/// pointers valid for columns `x - K/2 .. x + 8 + K/2`.
+#[inline]
+#[target_feature(enable = "avx2,fma,f16c")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn chunk8<S: FloatElement, const K: usize, const N: usize, const V: usize>(
+    kernel: &View<'_, S>,
+    srows: &[[*const f32; 15]; 4],
+    srows_s: &[[*const S; 15]; 4],
+    dst: &mut ViewMut<'_, S>,
+    y: usize,
+    yo: usize,
+    c0: usize,
+    x: usize,
+) {
+    let r = K / 2;
     let kp = kernel.ptr(0, y);
     let kstride = kernel.plane_stride();
-    let sstride = src.row_stride();
-    let mut sp = [core::ptr::null::<S>(); 4];
-    let mut dp = [core::ptr::null_mut::<S>(); 4];
-    for c in 0..n {
-        sp[c] = src.ptr(c0 + c, y - r);
-        dp[c] = dst.ptr_mut(c0 + c, yo);
+    if x % 16 < 8 {
+        // Every kernel plane is its own stream; 49 of them are more than the
+        // hardware prefetchers follow. Fetch each plane's line PREFETCH ahead.
+        for j in 0..K * K {
+            _mm_prefetch::<_MM_HINT_T0>(kp.wrapping_add(j * kstride + x + PREFETCH) as *const i8);
+        }
     }
-    let mut x = r;
-    while x + 8 + r <= w {
-        let mut acc = [_mm256_setzero_ps(); 4];
-        for ky in 0..k {
-            for kx in 0..k {
-                // SAFETY: as in `interior`.
-                let kv = unsafe { load8(kp.add((ky * k + kx) * kstride + x)) };
-                for c in 0..n {
-                    // SAFETY: as in `interior`.
-                    let sv = unsafe { load8(sp[c].add(ky * sstride + x + kx - r)) };
-                    acc[c] = _mm256_fmadd_ps(kv, sv, acc[c]);
+    // N channels times V vectors of independent FMA chains.
+    let mut acc = [[_mm256_setzero_ps(); V]; N];
+    for ky in 0..K {
+        for kx in 0..K {
+            for v in 0..V {
+                let xv = x + 8 * v;
+                // SAFETY: plane ky*K+kx exists and xv + 8 <= w.
+                let kv = unsafe { load8(kp.add((ky * K + kx) * kstride + xv)) };
+                for c in 0..N {
+                    // SAFETY: columns xv - r + kx .. + 8 inside the row (caller).
+                    let sv = unsafe {
+                        if S::IS_F16 {
+                            _mm256_loadu_ps(srows[c][ky].add(xv + kx - r))
+                        } else {
+                            load8(srows_s[c][ky].add(xv + kx - r))
+                        }
+                    };
+                    acc[c][v] = _mm256_fmadd_ps(kv, sv, acc[c][v]);
                 }
             }
         }
-        for c in 0..n {
-            // SAFETY: x + 8 <= w.
-            unsafe { store8(dp[c].add(x), acc[c]) };
-        }
-        x += 8;
     }
-    x
+    for c in 0..N {
+        for v in 0..V {
+            // SAFETY: x + 8 V <= w.
+            unsafe { store8(dst.ptr_mut(c0 + c, yo).add(x + 8 * v), acc[c][v]) };
+        }
+    }
 }

@@ -9,6 +9,20 @@ pub(crate) mod scalar;
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod avx2;
 
+/// Scratch words: the scalar row accumulator, or (AVX2, f16) more for the ring
+/// of widened source rows; the larger of the two so any ISA can run.
+pub(crate) fn scratch_len<S: FloatElement>(k: usize, channels: usize, width: usize) -> usize {
+    #[cfg(target_arch = "x86_64")]
+    {
+        avx2::scratch_len(k, channels, width, S::IS_F16)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = k;
+        channels.saturating_mul(width)
+    }
+}
+
 pub(crate) fn run<S: FloatElement, A: crate::real::Real>(
     isa: Isa,
     k: usize,
