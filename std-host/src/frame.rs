@@ -25,12 +25,14 @@ pub struct Limits {
     pub max_pixels: usize,
     /// Largest number of channels in the file.
     pub max_channels: usize,
+    /// Largest file size in bytes.
+    pub max_file_bytes: u64,
 }
 
 impl Default for Limits {
-    /// 16384 pixels a side, 2^25 pixels (33.5 Mpx: 8K x 4K), 64 channels.
+    /// 16384 pixels a side, 2^25 pixels (33.5 Mpx: 8K x 4K), 64 channels, 4 GiB files.
     fn default() -> Self {
-        Limits { max_side: 16_384, max_pixels: 1 << 25, max_channels: 64 }
+        Limits { max_side: 16_384, max_pixels: 1 << 25, max_channels: 64, max_file_bytes: 4 << 30 }
     }
 }
 
@@ -191,20 +193,29 @@ impl Frame {
         if meta.is_dir() {
             return Err(HostError::bad(path, "is a directory, not an EXR file"));
         }
-        let file = std::fs::File::open(path).map_err(|e| HostError::read(path, e))?;
-        let mut reader = std::io::BufReader::new(file);
-        let header = exr::meta::MetaData::read_from_buffered(&mut reader, false)
-            .map_err(|e| HostError::bad(path, format!("not a readable OpenEXR file ({e})")))?;
+        if meta.len() > limits.max_file_bytes {
+            return Err(HostError::bad(
+                path,
+                format!("file is {} bytes, over the limit of {}", meta.len(), limits.max_file_bytes),
+            ));
+        }
+        let bytes = std::fs::read(path).map_err(|e| HostError::read(path, e))?;
+        Frame::load_bytes(&bytes, path, limits)
+    }
+
+    /// Parses a frame from the bytes of an EXR file (`path` names it in errors).
+    pub fn load_bytes(bytes: &[u8], path: &Path, limits: &Limits) -> Result<Frame> {
+        let not_exr = |e: exr::error::Error| HostError::bad(path, format!("not a readable OpenEXR file ({e})"));
+        let header = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false).map_err(not_exr)?;
         check_headers(path, &header, limits)?;
-        drop(reader);
         let image = exr::prelude::read()
             .no_deep_data()
             .largest_resolution_level()
             .all_channels()
             .first_valid_layer()
             .all_attributes()
-            .from_file(path)
-            .map_err(|e| HostError::bad(path, format!("not a readable OpenEXR file ({e})")))?;
+            .from_buffered(std::io::Cursor::new(bytes))
+            .map_err(not_exr)?;
         let layer = &image.layer_data;
         let (width, height) = (layer.size.0, layer.size.1);
         let names: Vec<String> = layer.channel_data.list.iter().map(|c| c.name.to_string()).collect();
@@ -252,9 +263,16 @@ pub fn sanitize(v: f32) -> f32 {
 }
 
 fn check_headers(path: &Path, meta: &exr::meta::MetaData, limits: &Limits) -> Result<()> {
-    let Some(h) = meta.headers.first() else {
+    if meta.headers.is_empty() {
         return Err(HostError::bad(path, "OpenEXR file has no layers"));
-    };
+    }
+    for h in meta.headers.iter() {
+        check_header(path, h, limits)?;
+    }
+    Ok(())
+}
+
+fn check_header(path: &Path, h: &exr::meta::header::Header, limits: &Limits) -> Result<()> {
     let (w, hh) = (h.layer_size.0, h.layer_size.1);
     if w == 0 || hh == 0 {
         return Err(HostError::bad(path, "image is empty (0 pixels)"));

@@ -187,3 +187,20 @@ fn denoise_and_score_a_sequence() {
     let s = String::from_utf8_lossy(&out.stdout);
     assert!(s.starts_with("{\"files\":[") && s.contains("\"mean\":"), "{s}");
 }
+
+#[test]
+fn a_failed_write_leaves_nothing_behind() {
+    let t = tempfile::tempdir().unwrap();
+    let target = t.path().join("out.exr");
+    std::fs::write(&target, b"previous result").unwrap();
+    // The writer fails half-way: the previous file stays, no temporary is left.
+    let e = mcdenoise::output::atomic_write(&target, |tmp| {
+        std::fs::write(tmp, b"half").unwrap();
+        Err("disk full".into())
+    })
+    .unwrap_err();
+    assert!(e.to_string().contains("out.exr") && e.to_string().contains("disk full"), "{e}");
+    assert_eq!(std::fs::read(&target).unwrap(), b"previous result");
+    let names: Vec<_> = std::fs::read_dir(t.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(names.len(), 1, "{names:?}");
+}
