@@ -26,7 +26,7 @@ fn frame(t: usize, w: usize, h: usize) -> Frame {
             }
         }
     }
-    if t % 7 == 0 {
+    if t.is_multiple_of(7) {
         c[(t * 37) % n] = 1e5;
     }
     let mut f = Frame::from_color(format!("f{t}.exr"), w, h, c).unwrap();
