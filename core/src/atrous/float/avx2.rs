@@ -161,9 +161,9 @@ unsafe fn interior8<S: FloatElement, const G: usize, const VAR: bool, const GEO:
     let guide = |r: &RowPtrs<S>, xx: usize, ch: usize| {
         let mut s = ld(r.src[ch], xx);
         if G == 2 {
-            s = _mm256_add_ps(s, ld(r.src[3 + ch], xx));
+            s = _mm256_mul_ps(_mm256_add_ps(s, ld(r.src[3 + ch], xx)), inv_g);
         }
-        _mm256_mul_ps(s, inv_g)
+        s
     };
     let gp = [guide(pr, x, 0), guide(pr, x, 1), guide(pr, x, 2)];
     let vp = ld(pr.noise, x);
