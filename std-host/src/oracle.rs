@@ -267,7 +267,8 @@ pub fn atrous_step(
     let nc = 3 * groups;
     let nout = nc + if with_var { 2 } else { 0 };
     let mut out = vec![0.0; nout * n];
-    let guide = |c: usize, i: usize| (0..groups).map(|gi| src[(3 * gi + c) * n + i]).sum::<f64>() / groups as f64;
+    // The colour guide is the first image.
+    let guide = |c: usize, i: usize| src[c * n + i];
     for y in 0..h as i64 {
         for x in 0..w as i64 {
             let p = (y * w as i64 + x) as usize;

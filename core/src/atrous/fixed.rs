@@ -58,9 +58,8 @@ pub(crate) fn step(
     } else {
         q16(1.0 / ((p.sigma_depth * hole as f32) * (p.sigma_depth * hole as f32)))
     };
-    let guide = |y: usize, x: usize, c: usize| -> i128 {
-        (0..groups).map(|gi| at(src, 3 * gi + c, y, x) as i128).sum::<i128>() / groups as i128
-    };
+    // The colour guide is the first image.
+    let guide = |y: usize, x: usize, c: usize| -> i128 { at(src, c, y, x) as i128 };
     for yo in 0..dst.height() {
         let y = y0 + yo;
         for x in 0..w {

@@ -7,7 +7,7 @@
 //! `w = h(dx) h(dy) exp(-(t_colour + t_normal + t_geometry))`,
 //! `h = (1/16, 1/4, 3/8, 1/4, 1/16)` (B3 spline), out-of-image taps left out:
 //! - `t_colour = |g(p) - g(q)|^2 / (phi_color 2^-i min(v(p), v(q)) + eps)`:
-//!   `g` is the colour guide (the mean of the images filtered together), `v`
+//!   `g` is the colour guide (the first of the images filtered together), `v`
 //!   the input's per-pixel noise variance, so colour stops edges relative to
 //!   the local noise and the threshold shrinks by half each level. The
 //!   smaller of the two variances is used so that a very noisy pixel (a
@@ -23,7 +23,8 @@
 //! The centre tap always weighs `9/64`, so the normaliser never vanishes.
 //!
 //! Several images (`groups` of 3 channels) can be filtered with the same
-//! weights; a variance plane can ride along (filtered with squared normalised
+//! weights, the first one guiding (for the paired SURE: the mean of two
+//! estimates, and half their difference riding along); a variance plane can ride along (filtered with squared normalised
 //! weights), with the normalised centre weight written beside it, for the
 //! variance propagation of the single-estimate SURE.
 //!

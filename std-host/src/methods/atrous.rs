@@ -6,9 +6,10 @@
 //! and the noise comes from the frame itself:
 //! - noise variance of the input per pixel: `v = |A - B|^2 / 4` (the variance
 //!   of `M`, unbiased for independent `A`, `B`), mean over channels, 3x3 box;
-//! - `sure-atrous` filters `A` and `B` with the *same* weights (guided by `M`,
-//!   so the levels of `M` are exactly the baseline's) and takes the detail of
-//!   `M` as `(D_A + D_B) / 2` and its noise variance as `|D_A - D_B|^2 / 4`.
+//! - `sure-atrous` filters `M` and `H = (A - B) / 2` with the *same* weights
+//!   (guided by `M`, so the levels of `M` are exactly the baseline's); the
+//!   detail of `M` is `D_M` and its noise variance `|D_H|^2` (which equals
+//!   `|D_A - D_B|^2 / 4`: the filter is linear).
 //!   That is an unbiased, per-pixel, per-level estimate of the detail noise
 //!   with no model of the filter's effective kernel.
 //!
@@ -198,15 +199,17 @@ impl<P: HostPrecision> Denoiser for Atrous<P> {
             position: position.as_ref().map(|p| p.view()),
             depth: depth.as_ref().map(|p| p.view()),
         };
-        // Level 0 images: [A, B] (sure with a pair), [M] otherwise, + variance (sure, single).
+        // Level 0 images: [M, H] (sure with a pair), [M] otherwise, + variance (sure, single).
         let sure_pair = self.sure && self.pair;
         let sure_single = self.sure && !self.pair;
         let groups = if sure_pair { 2 } else { 1 };
         let mut c0 = vec![0.0f32; (3 * groups + usize::from(sure_single)) * n];
         match (&b_irr, sure_pair) {
             (Some(bb), true) => {
-                c0[..3 * n].copy_from_slice(&a_irr);
-                c0[3 * n..6 * n].copy_from_slice(bb);
+                for i in 0..3 * n {
+                    c0[i] = 0.5 * (a_irr[i] + bb[i]);
+                    c0[3 * n + i] = 0.5 * (a_irr[i] - bb[i]);
+                }
             }
             (Some(bb), false) => {
                 for i in 0..3 * n {
@@ -261,8 +264,7 @@ impl<P: HostPrecision> Denoiser for Atrous<P> {
         let last = cur.decode::<P>();
         let mut out = vec![0.0f32; 3 * n];
         for i in 0..3 * n {
-            let c_n = if sure_pair { 0.5 * (last[i] + last[3 * n + i]) } else { last[i] };
-            out[i] = c_n + recon[i];
+            out[i] = last[i] + recon[i];
         }
         if let Some(al) = albedo {
             t.time("remodulate", || {
@@ -293,9 +295,8 @@ fn sure_terms(cur: &[f32], next: &[f32], groups: usize, single: bool, n: usize) 
         for c in 0..3 {
             let i = c * n + p;
             let (dm, noise) = if groups == 2 {
-                let da = cur[i] - next[i];
-                let db = cur[3 * n + i] - next[3 * n + i];
-                (0.5 * (da + db), 0.25 * (da - db) * (da - db))
+                let dh = cur[3 * n + i] - next[3 * n + i];
+                (cur[i] - next[i], dh * dh)
             } else if single {
                 // Var(D) = Var(c_i)(1 - 2 w_centre) + Var(c_{i+1}), per channel.
                 let var_i = cur[3 * n + p];

@@ -157,14 +157,8 @@ unsafe fn interior8<S: FloatElement, const G: usize, const VAR: bool, const GEO:
     let zero = _mm256_setzero_ps();
     let one = _mm256_set1_ps(1.0);
     let two = _mm256_set1_ps(2.0);
-    let inv_g = _mm256_set1_ps(1.0 / G as f32);
-    let guide = |r: &RowPtrs<S>, xx: usize, ch: usize| {
-        let mut s = ld(r.src[ch], xx);
-        if G == 2 {
-            s = _mm256_mul_ps(_mm256_add_ps(s, ld(r.src[3 + ch], xx)), inv_g);
-        }
-        s
-    };
+    // The colour guide is the first image.
+    let guide = |r: &RowPtrs<S>, xx: usize, ch: usize| ld(r.src[ch], xx);
     let gp = [guide(pr, x, 0), guide(pr, x, 1), guide(pr, x, 2)];
     let vp = ld(pr.noise, x);
     // Plane needs normals; the other geometries may have them too.

@@ -25,14 +25,8 @@ pub(crate) fn pixel<S: FloatElement, A: Real>(c: &Ctx<'_, '_, S>, y: usize, x: u
     let src = c.src;
     let (w, h) = (src.width(), src.height());
     let nc = 3 * c.groups;
-    let inv_g = A::of(1.0 / c.groups as f32);
-    let guide = |yy: usize, xx: usize, ch: usize| {
-        let mut s = A::ZERO;
-        for g in 0..c.groups {
-            s += at::<S, A>(src, 3 * g + ch, yy, xx);
-        }
-        s * inv_g
-    };
+    // The colour guide is the first image.
+    let guide = |yy: usize, xx: usize, ch: usize| at::<S, A>(src, ch, yy, xx);
     let gp = [guide(y, x, 0), guide(y, x, 1), guide(y, x, 2)];
     let vp: A = at(&c.guides.noise, 0, y, x);
     let np = c.guides.normal.as_ref().map(|n| v3::<S, A>(n, y, x)).unwrap_or([A::ZERO; 3]);
