@@ -14,19 +14,25 @@ pub enum Isa {
     Scalar,
     /// x86_64 AVX2 with FMA and F16C (Haswell, Zen and later).
     Avx2,
+    /// x86_64 AVX-512 (F, BW, DQ, VL) on top of AVX2, FMA and F16C (Skylake-SP,
+    /// Ice Lake, Zen 4 and later). Operators with a 16-lane kernel use it
+    /// (à-trous, fused filter, convolutions); every other operator runs its
+    /// AVX2 kernel under this value.
+    Avx512,
     /// aarch64 Advanced SIMD.
     Neon,
 }
 
 impl Isa {
     /// Every ISA this crate knows, in order of preference from worst to best.
-    pub const ALL: [Isa; 3] = [Isa::Scalar, Isa::Avx2, Isa::Neon];
+    pub const ALL: [Isa; 4] = [Isa::Scalar, Isa::Avx2, Isa::Avx512, Isa::Neon];
 
     /// Short lower-case name (`scalar`, `avx2`, `neon`).
     pub const fn name(self) -> &'static str {
         match self {
             Isa::Scalar => "scalar",
             Isa::Avx2 => "avx2",
+            Isa::Avx512 => "avx512",
             Isa::Neon => "neon",
         }
     }
@@ -41,13 +47,16 @@ impl Isa {
         match self {
             Isa::Scalar => true,
             Isa::Avx2 => avx2_fma_f16c(),
+            Isa::Avx512 => avx2_fma_f16c() && avx512(),
             Isa::Neon => cfg!(all(target_arch = "aarch64", target_feature = "neon")),
         }
     }
 
     /// The best supported ISA.
     pub fn detect() -> Isa {
-        if Isa::Avx2.is_supported() {
+        if Isa::Avx512.is_supported() {
+            Isa::Avx512
+        } else if Isa::Avx2.is_supported() {
             Isa::Avx2
         } else if Isa::Neon.is_supported() {
             Isa::Neon
@@ -88,6 +97,55 @@ fn avx2_fma_f16c() -> bool {
 #[cfg(not(target_arch = "x86_64"))]
 fn avx2_fma_f16c() -> bool {
     false
+}
+
+#[cfg(target_arch = "x86_64")]
+fn avx512() -> bool {
+    use core::sync::atomic::{AtomicU8, Ordering};
+    if cfg!(all(
+        target_feature = "avx512f",
+        target_feature = "avx512bw",
+        target_feature = "avx512dq",
+        target_feature = "avx512vl"
+    )) {
+        return true;
+    }
+    static STATE: AtomicU8 = AtomicU8::new(0);
+    match STATE.load(Ordering::Relaxed) {
+        1 => false,
+        2 => true,
+        _ => {
+            let present = probe_avx512();
+            STATE.store(if present { 2 } else { 1 }, Ordering::Relaxed);
+            present
+        }
+    }
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+fn avx512() -> bool {
+    false
+}
+
+/// Leaf 7: AVX512F (EBX bit 16), DQ (17), BW (30), VL (31); XCR0 bits 5-7:
+/// the OS saves the opmask registers and the upper ZMM state (checked after
+/// the AVX2 probe, which established OSXSAVE).
+#[cfg(target_arch = "x86_64")]
+#[allow(unused_unsafe)]
+fn probe_avx512() -> bool {
+    use core::arch::x86_64::__cpuid_count;
+    if !avx2_fma_f16c() {
+        return false;
+    }
+    // SAFETY: OSXSAVE was checked by the AVX2 probe.
+    let xcr0 = unsafe { xgetbv0() };
+    if xcr0 & 0b1110_0110 != 0b1110_0110 {
+        return false;
+    }
+    // SAFETY: the AVX2 probe checked max_leaf >= 7.
+    let l7 = unsafe { __cpuid_count(7, 0) };
+    let bit = |b: u32| l7.ebx & (1 << b) != 0;
+    bit(16) && bit(17) && bit(30) && bit(31)
 }
 
 /// CPUID leaf 1: FMA (ECX bit 12), OSXSAVE (27), AVX (28), F16C (29);

@@ -47,7 +47,8 @@ fn store<P: HostPrecision>(c: usize, w: usize, h: usize, v: &[f32], kind: Kind) 
     Planes::<P::Store>::encode_as::<P>(c, w, h, v, kind)
 }
 
-/// Runs `f` on the scalar ISA and on AVX2 with different sentinels and
+/// Runs `f` on the scalar ISA and on each SIMD ISA this CPU has (AVX2,
+/// AVX-512) with different sentinels and
 /// compares (bits for fixed point); returns the scalar output, decoded.
 fn both<P: HostPrecision>(shape: (usize, usize, usize), frac: i8, f: impl Fn(Isa, &mut Planes<P::Store>)) -> Vec<f32> {
     let run = |isa: Isa, fill: f32| {
@@ -56,19 +57,22 @@ fn both<P: HostPrecision>(shape: (usize, usize, usize), frac: i8, f: impl Fn(Isa
         f(isa, &mut o);
         o
     };
-    let (a, b) = (run(Isa::Scalar, -7.0), run(Isa::Avx2, 3.0));
-    let (da, db) = (a.decode::<P>(), b.decode::<P>());
-    if P::NAME == "fixed" {
-        assert!(da == db, "fixed point: SIMD differs from scalar");
-    } else {
-        // f32 differs by FMA and exp rounding; f16 storage can then round to
-        // neighbouring f16 values (one f16 ulp, 2^-10 relative).
-        let peak = da.iter().fold(0.0f32, |m, v| if v.is_finite() { m.max(v.abs()) } else { m });
-        let ulp = if P::NAME == "f16" { 1.0 / 1024.0 } else { 0.0 };
-        for (i, (&x, &y)) in db.iter().zip(&da).enumerate() {
-            let ok =
-                (x.is_nan() && y.is_nan()) || x == y || (x - y).abs() <= 1e-4 * (peak + 1.0) + (1e-4 + ulp) * y.abs();
-            assert!(ok, "{}: element {i}: SIMD {x} vs scalar {y}", P::NAME);
+    let da = run(Isa::Scalar, -7.0).decode::<P>();
+    for isa in [Isa::Avx2, Isa::Avx512].into_iter().filter(|i| i.is_supported()) {
+        let db = run(isa, 3.0).decode::<P>();
+        if P::NAME == "fixed" {
+            assert!(da == db, "fixed point: {} differs from scalar", isa.name());
+        } else {
+            // f32 differs by FMA and exp rounding; f16 storage can then round to
+            // neighbouring f16 values (one f16 ulp, 2^-10 relative).
+            let peak = da.iter().fold(0.0f32, |m, v| if v.is_finite() { m.max(v.abs()) } else { m });
+            let ulp = if P::NAME == "f16" { 1.0 / 1024.0 } else { 0.0 };
+            for (i, (&x, &y)) in db.iter().zip(&da).enumerate() {
+                let ok = (x.is_nan() && y.is_nan())
+                    || x == y
+                    || (x - y).abs() <= 1e-4 * (peak + 1.0) + (1e-4 + ulp) * y.abs();
+                assert!(ok, "{} {}: element {i}: SIMD {x} vs scalar {y}", P::NAME, isa.name());
+            }
         }
     }
     da

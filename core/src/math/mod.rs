@@ -14,6 +14,9 @@ pub mod scalar;
 #[cfg(target_arch = "x86_64")]
 pub mod avx2;
 
+#[cfg(target_arch = "x86_64")]
+pub mod avx512;
+
 /// Smallest argument `exp` returns a non-zero value for (`e^-87 ~ 1.6e-38`,
 /// just above the smallest normal f32).
 pub const EXP_LO: f32 = -87.0;

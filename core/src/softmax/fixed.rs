@@ -148,7 +148,7 @@ pub(crate) fn fused(
         }
         WindowPath::BoxSum => {
             // Skip a word if the scratch is not 8-byte aligned (it is 4-byte aligned).
-            let off = usize::from((scratch.as_ptr() as usize) % 8 != 0).min(scratch.len());
+            let off = usize::from(!(scratch.as_ptr() as usize).is_multiple_of(8)).min(scratch.len());
             let words = (scratch.len() - off) / 2 * 2;
             match bytemuck::try_cast_slice_mut(&mut scratch[off..off + words]) {
                 Ok(s) => boxsum(inp, dst, y0, s),

@@ -9,6 +9,8 @@ pub(crate) mod scalar;
 
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod avx2;
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod avx512;
 
 /// How geometry stops edges.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -95,6 +97,9 @@ pub(crate) fn step<S: FloatElement, A: crate::real::Real>(
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked support.
         Isa::Avx2 if A::IS_F32 => unsafe { avx2::step(&ctx, dst, y0) },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the caller checked support.
+        Isa::Avx512 if A::IS_F32 => unsafe { avx512::step(&ctx, dst, y0) },
         _ => scalar::step::<S, A>(&ctx, dst, y0),
     }
 }

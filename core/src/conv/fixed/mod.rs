@@ -24,7 +24,7 @@ pub(crate) fn forward(
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked support.
-        Isa::Avx2 => unsafe { avx2::forward(layer, src, dst, y0, scratch) },
+        Isa::Avx2 | Isa::Avx512 => unsafe { avx2::forward(layer, src, dst, y0, scratch) },
         _ => {
             let _ = scratch;
             scalar::forward(layer, src, dst, y0)

@@ -20,7 +20,7 @@ pub(crate) fn reduce<S: FloatElement, A: crate::real::Real>(
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked support.
-        Isa::Avx2 if A::IS_F32 => unsafe { avx2::reduce(op, src, dst, y0) },
+        Isa::Avx2 | Isa::Avx512 if A::IS_F32 => unsafe { avx2::reduce(op, src, dst, y0) },
         _ => scalar::reduce::<S, A>(op, src, dst, y0, 0),
     }
 }
@@ -34,7 +34,7 @@ pub(crate) fn upsample<S: FloatElement, A: crate::real::Real>(
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked support.
-        Isa::Avx2 if A::IS_F32 => unsafe { avx2::upsample(src, dst, y0) },
+        Isa::Avx2 | Isa::Avx512 if A::IS_F32 => unsafe { avx2::upsample(src, dst, y0) },
         _ => scalar::upsample(src, dst, y0, 0),
     }
 }
@@ -50,7 +50,7 @@ pub(crate) fn composite<S: FloatElement, A: crate::real::Real>(
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked support.
-        Isa::Avx2 if A::IS_F32 => unsafe { avx2::composite(fine, coarse, alpha, dst, y0) },
+        Isa::Avx2 | Isa::Avx512 if A::IS_F32 => unsafe { avx2::composite(fine, coarse, alpha, dst, y0) },
         _ => scalar::composite::<S, A>(fine, coarse, alpha, dst, y0, 0),
     }
 }

@@ -97,9 +97,9 @@ pub(crate) fn fused<S: FloatElement>(
     match (isa, path) {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked support.
-        (Isa::Avx2, WindowPath::Direct) => unsafe { avx2::direct(inp, dst, y0) },
+        (Isa::Avx2 | Isa::Avx512, WindowPath::Direct) => unsafe { avx2::direct(inp, dst, y0) },
         #[cfg(target_arch = "x86_64")]
-        (Isa::Avx2, WindowPath::BoxSum) => {
+        (Isa::Avx2 | Isa::Avx512, WindowPath::BoxSum) => {
             // SAFETY: the caller checked support.
             let ops = unsafe { avx2::Avx2Ops::new() };
             boxsum(&ops, inp, dst, y0, scratch)
@@ -126,7 +126,7 @@ pub(crate) fn kernels<S: FloatElement>(isa: Isa, k: usize, logits: &View<'_, S>,
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked support.
-        Isa::Avx2 => unsafe { avx2::kernels(k, logits, dst, y0) },
+        Isa::Avx2 | Isa::Avx512 => unsafe { avx2::kernels(k, logits, dst, y0) },
         _ => scalar::kernels::<S, f32>(k, logits, dst, y0),
     }
 }
@@ -135,7 +135,7 @@ pub(crate) fn channel<S: FloatElement>(isa: Isa, src: &View<'_, S>, dst: &mut Vi
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked support.
-        Isa::Avx2 => unsafe { avx2::channel(src, dst) },
+        Isa::Avx2 | Isa::Avx512 => unsafe { avx2::channel(src, dst) },
         _ => scalar::channel::<S, f32>(src, dst),
     }
 }

@@ -40,7 +40,7 @@ pub(crate) fn map<S: FloatElement, A: Real>(isa: Isa, op: Map, src: &View<'_, S>
             let done = match isa {
                 #[cfg(target_arch = "x86_64")]
                 // SAFETY: the caller checked support.
-                crate::Isa::Avx2 if A::IS_F32 => unsafe { avx2::map_row(op, s, d) },
+                crate::Isa::Avx2 | crate::Isa::Avx512 if A::IS_F32 => unsafe { avx2::map_row(op, s, d) },
                 _ => 0,
             };
             map_row::<S, A>(op, s, d, done);
@@ -62,7 +62,9 @@ pub(crate) fn modulate<S: FloatElement, A: Real>(
             let done = match isa {
                 #[cfg(target_arch = "x86_64")]
                 // SAFETY: the caller checked support.
-                crate::Isa::Avx2 if A::IS_F32 => unsafe { avx2::modulate_row(divide, s, a, eps, d) },
+                crate::Isa::Avx2 | crate::Isa::Avx512 if A::IS_F32 => unsafe {
+                    avx2::modulate_row(divide, s, a, eps, d)
+                },
                 _ => 0,
             };
             modulate_row::<S, A>(divide, s, a, eps, d, done);

@@ -23,7 +23,7 @@ pub(crate) fn run(
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked support.
-        Isa::Avx2 => unsafe { avx2::run(k, kernel, src, dst, y0) },
+        Isa::Avx2 | Isa::Avx512 => unsafe { avx2::run(k, kernel, src, dst, y0) },
         _ => scalar::run(k, kernel, src, dst, y0),
     }
 }

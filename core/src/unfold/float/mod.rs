@@ -35,7 +35,7 @@ pub(crate) fn run<S: FloatElement, A: crate::real::Real>(
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked `isa.is_supported()`.
-        Isa::Avx2 if A::IS_F32 => unsafe { avx2::run(k, kernel, src, dst, y0, scratch) },
+        Isa::Avx2 | Isa::Avx512 if A::IS_F32 => unsafe { avx2::run(k, kernel, src, dst, y0, scratch) },
         _ => scalar::run::<S, A>(k, kernel, src, dst, y0, scratch),
     }
 }
