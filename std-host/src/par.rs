@@ -105,6 +105,31 @@ impl Pool {
         })
     }
 
+    /// Runs `f` inside the pool (rayon's parallel iterators then use its threads).
+    pub fn install<R: Send>(&self, f: impl FnOnce() -> R + Send) -> R {
+        self.pool.install(f)
+    }
+
+    /// Cuts every plane of `planes` (all of one length) into runs of `chunk`
+    /// elements and calls `f(start, runs)` on each run in parallel, `runs`
+    /// holding the same run of every plane. For per-pixel passes over planar
+    /// images.
+    pub fn planes(
+        &self,
+        planes: Vec<&mut [f32]>,
+        chunk: usize,
+        f: impl Fn(usize, &mut [&mut [f32]]) + Sync + Send,
+    ) {
+        let n = planes.first().map_or(0, |p| p.len());
+        assert!(planes.iter().all(|p| p.len() == n), "planes of different lengths");
+        let chunk = chunk.max(1);
+        let mut iters: Vec<_> = planes.into_iter().map(|p| p.chunks_mut(chunk)).collect();
+        let jobs: Vec<(usize, Vec<&mut [f32]>)> = (0..n.div_ceil(chunk))
+            .map(|i| (i * chunk, iters.iter_mut().map(|it| it.next().expect("equal lengths")).collect()))
+            .collect();
+        self.pool.install(|| jobs.into_par_iter().for_each(|(start, mut runs)| f(start, &mut runs)));
+    }
+
     /// `f(i)` for `i in 0..n` on the pool's threads, results in order.
     pub fn map<T: Send>(&self, n: usize, f: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
         self.pool.install(|| (0..n).into_par_iter().map(f).collect())

@@ -35,7 +35,7 @@
 //! variance `s`, Stein's unbiased risk estimate is
 //! `(1 - beta)^2 D^2 + (2 beta - 1) s`; summed over a window around `p` (and
 //! the channels) it is an unbiased estimate of the window's risk, and
-//! [`sure_pick`] takes the candidate `beta` minimising it. Any `beta` in
+//! [`sure_shrink`] takes the candidate `beta` minimising it. Any `beta` in
 //! [0, 1] is valid for this estimator, so 0 and 1 join the paper's
 //! {0.2, 0.4, 0.6, 0.8}: where the detail is pure noise the risk is lowest at
 //! 0, where it is signal well above the noise at 1.
@@ -48,6 +48,9 @@ use crate::Isa;
 
 pub(crate) mod fixed;
 pub(crate) mod float;
+mod sure;
+
+pub use sure::{sure_scratch_len, sure_shrink};
 
 /// The B3-spline taps.
 pub const B3: [f32; 5] = [1.0 / 16.0, 1.0 / 4.0, 3.0 / 8.0, 1.0 / 4.0, 1.0 / 16.0];
@@ -200,33 +203,22 @@ pub fn step<P: AtrousPrecision>(
 /// The SURE candidate weights: the paper's four plus 0 and 1.
 pub const SURE_CANDIDATES: [f32; 6] = [0.0, 0.2, 0.4, 0.6, 0.8, 1.0];
 
-/// Picks, per pixel, the `beta` among `candidates` minimising
-/// `(1 - beta)^2 e + (2 beta - 1) s` and adds `beta * detail` to `acc`.
-/// `e` is the (window-averaged) detail energy, `s` the (window-averaged)
-/// noise variance of the detail; `detail` and `acc` have the same shape.
-pub fn sure_pick(
-    e: &View<'_, f32>,
-    s: &View<'_, f32>,
-    candidates: &[f32],
-    detail: &View<'_, f32>,
-    acc: &mut ViewMut<'_, f32>,
-) -> Result<()> {
-    let d = detail.shape();
-    let plane = Shape::new(1, d.width, d.height);
-    check_shape("detail energy", plane, e.shape())?;
-    check_shape("detail noise", plane, s.shape())?;
-    check_shape("reconstruction", d, acc.shape())?;
+/// Radius of the window the SURE terms are summed over (5x5).
+pub const SURE_RADIUS: usize = 2;
+
+/// Where the noise of a level's detail comes from (see [`sure_shrink`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SureSource {
+    /// Two independent estimates, filtered as their mean `M` and half
+    /// difference `H`.
+    Pair,
+    /// One estimate with its variance propagated through the levels.
+    Single,
+}
+
+fn check_candidates(candidates: &[f32]) -> Result<()> {
     if candidates.is_empty() || candidates.iter().any(|c| !(0.0..=1.0).contains(c)) {
         return Err(Error::BadParameter { what: "SURE candidates", expected: "values in [0, 1]" });
-    }
-    for y in 0..d.height {
-        let (er, sr) = (e.row(0, y), s.row(0, y));
-        for x in 0..d.width {
-            let beta = best_beta(er[x], sr[x], candidates);
-            for c in 0..d.channels {
-                acc.row_mut(c, y)[x] += beta * detail.at(c, y, x);
-            }
-        }
     }
     Ok(())
 }

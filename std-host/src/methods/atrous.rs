@@ -27,7 +27,7 @@
 
 use std::marker::PhantomData;
 
-use mcdenoise_core::atrous::{self, AtrousGuides, AtrousParams, SURE_CANDIDATES};
+use mcdenoise_core::atrous::{self, AtrousGuides, AtrousParams, SureSource, SURE_CANDIDATES};
 use mcdenoise_core::softmax::{self, WindowPath};
 use mcdenoise_core::tonemap;
 use mcdenoise_core::{View, ViewMut};
@@ -43,8 +43,6 @@ pub const ALBEDO_EPS: f32 = 1e-3;
 pub const LEVELS: u32 = 5;
 /// Radius of the box the noise variance estimate is smoothed with (3x3, as SVGF).
 pub const NOISE_RADIUS: usize = 1;
-/// Radius of the window the SURE is summed over.
-pub const SURE_RADIUS: usize = 2;
 /// Tangent-plane tolerance as a fraction of the scene scale.
 pub const PLANE_TOLERANCE: f32 = 0.005;
 
@@ -59,6 +57,7 @@ pub struct Atrous<P: HostPrecision> {
     use_position: bool,
     use_depth: bool,
     params: AtrousParams,
+    bufs: Option<Bufs<P::Store>>,
     _p: PhantomData<P>,
 }
 
@@ -100,7 +99,7 @@ impl<P: HostPrecision> Atrous<P> {
         if let Some(phi) = phi_color {
             params.phi_color = phi;
         }
-        Ok(Atrous { name, plan, sure, pair, demod, use_normal, use_position, use_depth, params, _p: PhantomData })
+        Ok(Atrous { name, plan, sure, pair, demod, use_normal, use_position, use_depth, params, bufs: None, _p: PhantomData })
     }
 }
 
@@ -115,17 +114,224 @@ fn bands<T: Send>(
     Ok(ctx.pool.bands(dst, align, &mut ctx.scratch, scratch_len, f)?)
 }
 
-/// Normalised box average of the planes of `src` over a `2r+1` window
-/// (the importance filter with all logits equal).
-fn box_average(ctx: &mut Ctx, src: &Planes<f32>, zeros: &Planes<f32>, r: usize) -> Result<Planes<f32>> {
-    let mut out = Planes::new(src.channels, src.width, src.height);
+/// Normalised box average over a `2r+1` window of the `channels` planes of
+/// `src` into `out` (the importance filter with all logits equal).
+#[allow(clippy::too_many_arguments)]
+fn box_average(
+    ctx: &mut Ctx,
+    src: &[f32],
+    zeros: &[f32],
+    channels: usize,
+    w: usize,
+    h: usize,
+    r: usize,
+    out: &mut [f32],
+) -> Result<()> {
     let (k, isa) = (2 * r + 1, ctx.isa);
-    let len = softmax::window_scratch_len::<mcdenoise_core::F32>(WindowPath::BoxSum, k, src.channels, src.width);
-    let (sv, zv) = (src.view(), zeros.view());
-    bands(ctx, out.view_mut(), 48, len, |band, y0, s| {
+    let len = softmax::window_scratch_len::<mcdenoise_core::F32>(WindowPath::BoxSum, k, channels, w);
+    let sv = View::new(src, channels, w, h)?;
+    let zv = View::new(zeros, channels, w, h)?;
+    bands(ctx, ViewMut::new(out, channels, w, h)?, 48, len, |band, y0, s| {
         softmax::window_filter::<mcdenoise_core::F32>(isa, WindowPath::BoxSum, k, &zv, &sv, band, y0, s)
-    })?;
-    Ok(out)
+    })
+}
+
+/// `d` as a slice of the storage type when that type is f32 (no copy).
+fn as_store<T: 'static>(d: &[f32]) -> Option<&[T]> {
+    if std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>() {
+        // SAFETY: T is f32 (same TypeId), so the layout is the same.
+        Some(unsafe { std::slice::from_raw_parts(d.as_ptr() as *const T, d.len()) })
+    } else {
+        None
+    }
+}
+
+/// `d` as f32 when the storage type is f32 (no copy).
+fn as_f32<T: 'static>(d: &[T]) -> Option<&[f32]> {
+    if std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>() {
+        // SAFETY: T is f32 (same TypeId).
+        Some(unsafe { std::slice::from_raw_parts(d.as_ptr() as *const f32, d.len()) })
+    } else {
+        None
+    }
+}
+
+/// `d` as f16 when the storage type is f16 (no copy).
+fn as_f16<T: 'static>(d: &[T]) -> Option<&[half::f16]> {
+    if std::any::TypeId::of::<T>() == std::any::TypeId::of::<half::f16>() {
+        // SAFETY: T is half::f16 (same TypeId).
+        Some(unsafe { std::slice::from_raw_parts(d.as_ptr() as *const half::f16, d.len()) })
+    } else {
+        None
+    }
+}
+
+/// f32 data in the pipeline's storage: borrowed when that is f32, else encoded.
+enum Held<'a, T> {
+    Borrowed(&'a [T]),
+    Owned(Planes<T>),
+}
+
+impl<'a, T: Copy + Default + 'static> Held<'a, T> {
+    fn new<P: HostPrecision<Store = T>>(d: &'a [f32], ch: usize, w: usize, h: usize, kind: Kind) -> Self {
+        match as_store::<T>(d) {
+            Some(s) => Held::Borrowed(s),
+            None => Held::Owned(Planes::encode_as::<P>(ch, w, h, d, kind)),
+        }
+    }
+    fn view(&self, ch: usize, w: usize, h: usize) -> View<'_, T> {
+        match self {
+            Held::Borrowed(s) => View::new(s, ch, w, h).expect("shape"),
+            Held::Owned(p) => p.view(),
+        }
+    }
+    fn frac(&self) -> i8 {
+        match self {
+            Held::Borrowed(_) => 0,
+            Held::Owned(p) => p.frac,
+        }
+    }
+    fn data(&self) -> &[T] {
+        match self {
+            Held::Borrowed(s) => s,
+            Held::Owned(p) => &p.data,
+        }
+    }
+}
+
+/// Buffers kept across the frames of a sequence (no allocation and no page
+/// faults per frame once warm).
+struct Bufs<T> {
+    n: usize,
+    /// Level-0 images in f32: `[M]`, `[M, H]` or `[A, variance]`.
+    c0: Vec<f32>,
+    /// Raw and smoothed noise variance.
+    noise_raw: Vec<f32>,
+    noise: Vec<f32>,
+    zeros: Vec<f32>,
+    /// Level outputs, alternating.
+    ping: Planes<T>,
+    pong: Planes<T>,
+    /// Sum of the shrunk details (SURE).
+    recon: Vec<f32>,
+    out: Vec<f32>,
+}
+
+impl<T: Copy + Default> Bufs<T> {
+    fn new(w: usize, h: usize, nsrc: usize, nout: usize) -> Self {
+        let n = w * h;
+        Bufs {
+            n,
+            c0: vec![0.0; nsrc * n],
+            noise_raw: vec![0.0; n],
+            noise: vec![0.0; n],
+            zeros: vec![0.0; n],
+            ping: Planes::new(nout, w, h),
+            pong: Planes::new(nout, w, h),
+            recon: vec![0.0; 3 * n],
+            out: vec![0.0; 3 * n],
+        }
+    }
+}
+
+/// Pixels per job of the per-pixel passes.
+const RUN: usize = 1 << 14;
+
+/// Demodulates `a` (and `b`) and forms the level-0 images: with `b`, the
+/// mean `M` (and, for `half_diff`, `H = (A - B) / 2`) and the raw noise
+/// `|A - B|^2 / 12` (the variance of `M`, mean over channels); without it,
+/// `A` itself.
+#[allow(clippy::too_many_arguments)]
+fn prepare(
+    ctx: &Ctx,
+    n: usize,
+    a: &[f32],
+    b: Option<&[f32]>,
+    albedo: Option<&[f32]>,
+    half_diff: bool,
+    c0: &mut [f32],
+    noise: &mut [f32],
+) {
+    let imgs = if b.is_some() && half_diff { 6 } else { 3 };
+    let mut planes: Vec<&mut [f32]> = c0.chunks_mut(n).take(imgs).collect();
+    planes.push(noise);
+    ctx.pool.planes(planes, RUN, |s, runs| {
+        let (img, nz) = runs.split_at_mut(imgs);
+        let nz = &mut *nz[0];
+        let len = nz.len();
+        let demod = |src: &[f32], c: usize, i: usize| {
+            let v = src[c * n + s + i];
+            match albedo {
+                Some(al) => v / (al[c * n + s + i] + ALBEDO_EPS),
+                None => v,
+            }
+        };
+        match b {
+            Some(b) => {
+                nz.fill(0.0);
+                for c in 0..3 {
+                    for i in 0..len {
+                        let (ai, bi) = (demod(a, c, i), demod(b, c, i));
+                        img[c][i] = 0.5 * (ai + bi);
+                        if half_diff {
+                            img[3 + c][i] = 0.5 * (ai - bi);
+                        }
+                        let d = ai - bi;
+                        nz[i] += d * d;
+                    }
+                }
+                for v in nz.iter_mut() {
+                    *v /= 12.0; // |A - B|^2 / 4, mean of 3 channels
+                }
+            }
+            None => {
+                for (c, im) in img.iter_mut().enumerate() {
+                    for (i, o) in im.iter_mut().enumerate() {
+                        *o = demod(a, c, i);
+                    }
+                }
+            }
+        }
+    });
+}
+
+/// One level's SURE shrinkage into `recon`, in bands. `cur` and `next` are
+/// (data, planes, fixed-point format) of the level's input and output;
+/// storage other than f32 and f16 (fixed point) is decoded to f32 first.
+#[allow(clippy::too_many_arguments)]
+fn shrink<P: HostPrecision>(
+    ctx: &mut Ctx,
+    source: SureSource,
+    cur: (&[P::Store], usize, i8),
+    next: (&[P::Store], usize, i8),
+    recon: &mut [f32],
+    w: usize,
+    h: usize,
+) -> Result<()> {
+    let isa = ctx.isa;
+    let len = atrous::sure_scratch_len(w);
+    let (cd, cc, cfrac) = cur;
+    let (nd, nc, nfrac) = next;
+    let rv = ViewMut::new(recon, 3, w, h)?;
+    macro_rules! go {
+        ($c:expr, $n:expr) => {{
+            let (cv, nv) = (View::new($c, cc, w, h)?, View::new($n, nc, w, h)?);
+            bands(ctx, rv, 1, len, |band, y0, s| {
+                atrous::sure_shrink(isa, source, &SURE_CANDIDATES, &cv, &nv, band, y0, s)
+            })
+        }};
+    }
+    if let (Some(c), Some(nx)) = (as_f32(cd), as_f32(nd)) {
+        go!(c, nx)
+    } else if let (Some(c), Some(nx)) = (as_f16(cd), as_f16(nd)) {
+        go!(c, nx)
+    } else {
+        let mut c = vec![0.0f32; cd.len()];
+        let mut nx = vec![0.0f32; nd.len()];
+        P::decode(cd, &mut c, cfrac);
+        P::decode(nd, &mut nx, nfrac);
+        go!(&c[..], &nx[..])
+    }
 }
 
 impl<P: HostPrecision> Denoiser for Atrous<P> {
@@ -149,180 +355,156 @@ impl<P: HostPrecision> Denoiser for Atrous<P> {
         let a = f.require(Buffer::Color, self.name)?;
         let b = need(Buffer::ColorB, self.pair)?;
         let albedo = need(Buffer::Albedo, self.demod)?;
-        // Demodulate (in f32: it is the input stage) and form the images to filter.
-        let (a_irr, b_irr) = t.time("demodulate", || {
-            let demod = |c: &[f32]| -> Vec<f32> {
-                match albedo {
-                    Some(al) => c.iter().zip(al).map(|(&v, &a)| v / (a + ALBEDO_EPS)).collect(),
-                    None => c.to_vec(),
-                }
-            };
-            (demod(a), b.map(demod))
-        });
-        // Noise variance of the filtered input, per pixel (mean over channels).
-        let noise_raw = t.time("noise estimate", || {
-            let mut v = vec![0.0f32; n];
-            match &b_irr {
-                Some(bb) => {
-                    for p in 0..n {
-                        let mut s = 0.0;
-                        for c in 0..3 {
-                            let d = a_irr[c * n + p] - bb[c * n + p];
-                            s += d * d;
-                        }
-                        v[p] = s / 12.0; // |A - B|^2 / 4, mean of 3 channels
-                    }
-                }
-                None => local_noise(&a_irr, w, h, &mut v),
-            }
-            v
-        });
-        let zeros = Planes::<f32>::new(1, w, h);
-        let noise32 = t.time("noise estimate", || {
-            if b_irr.is_some() {
-                box_average(ctx, &Planes::from_vec(1, w, h, noise_raw), &zeros, NOISE_RADIUS)
-            } else {
-                // A 3x3 median, not a box: where the local estimate mistook an
-                // edge for noise, those pixels are a minority of the window.
-                Ok(Planes::from_vec(1, w, h, median3(&noise_raw, w, h)))
-            }
-        })?;
-        let enc = |ch: usize, d: &[f32], kind: Kind| Planes::<P::Store>::encode_as::<P>(ch, w, h, d, kind);
-        let noise = enc(1, &noise32.data, Kind::Plain);
-        let normal = if self.use_normal { need(Buffer::Normal, true)?.map(|d| enc(3, d, Kind::Unit)) } else { None };
-        let position =
-            if self.use_position { need(Buffer::Position, true)?.map(|d| enc(3, d, Kind::Plain)) } else { None };
-        let depth = if self.use_depth { need(Buffer::Depth, true)?.map(|d| enc(1, d, Kind::Plain)) } else { None };
-        let guides = AtrousGuides {
-            noise: noise.view(),
-            normal: normal.as_ref().map(|p| p.view()),
-            position: position.as_ref().map(|p| p.view()),
-            depth: depth.as_ref().map(|p| p.view()),
-        };
-        // Level 0 images: [M, H] (sure with a pair), [M] otherwise, + variance (sure, single).
+        let normal = need(Buffer::Normal, self.use_normal)?;
+        let position = need(Buffer::Position, self.use_position)?;
+        let depth = need(Buffer::Depth, self.use_depth)?;
+        // Level images: [M, H] (sure with a pair), [M] or [A] otherwise, +
+        // variance (sure, single); a level's output adds the filtered
+        // variance and the centre weight (sure, single).
         let sure_pair = self.sure && self.pair;
         let sure_single = self.sure && !self.pair;
         let groups = if sure_pair { 2 } else { 1 };
-        let mut c0 = vec![0.0f32; (3 * groups + usize::from(sure_single)) * n];
-        match (&b_irr, sure_pair) {
-            (Some(bb), true) => {
-                for i in 0..3 * n {
-                    c0[i] = 0.5 * (a_irr[i] + bb[i]);
-                    c0[3 * n + i] = 0.5 * (a_irr[i] - bb[i]);
-                }
+        let nsrc = 3 * groups + usize::from(sure_single);
+        let nout = 3 * groups + 2 * usize::from(sure_single);
+        let bufs = match self.bufs.take() {
+            Some(bf) if bf.n == n && bf.ping.width == w && bf.ping.channels == nout => bf,
+            _ => Bufs::new(w, h, nsrc, nout),
+        };
+        let mut bf = bufs;
+        let result = self.run(f, ctx, t, &mut bf, (a, b, albedo, normal, position, depth), (groups, nsrc, nout));
+        self.bufs = Some(bf);
+        result
+    }
+}
+
+/// The frame's buffers a run reads.
+type Inputs<'a> = (
+    &'a [f32],
+    Option<&'a [f32]>,
+    Option<&'a [f32]>,
+    Option<&'a [f32]>,
+    Option<&'a [f32]>,
+    Option<&'a [f32]>,
+);
+
+impl<P: HostPrecision> Atrous<P> {
+    #[allow(clippy::type_complexity)]
+    fn run(
+        &self,
+        f: &Frame,
+        ctx: &mut Ctx,
+        t: &mut Timings,
+        bf: &mut Bufs<P::Store>,
+        (a, b, albedo, normal, position, depth): Inputs<'_>,
+        (groups, nsrc, nout): (usize, usize, usize),
+    ) -> Result<Vec<f32>> {
+        let (w, h) = (f.width, f.height);
+        let n = w * h;
+        let sure_pair = self.sure && self.pair;
+        let sure_single = self.sure && !self.pair;
+        t.time("prepare", || prepare(ctx, n, a, b, albedo, sure_pair, &mut bf.c0, &mut bf.noise_raw));
+        // Noise variance of the filtered input, per pixel.
+        t.time("noise estimate", || -> Result<()> {
+            if b.is_some() {
+                box_average(ctx, &bf.noise_raw, &bf.zeros, 1, w, h, NOISE_RADIUS, &mut bf.noise)
+            } else {
+                local_noise(ctx, &bf.c0[..3 * n], w, h, &mut bf.noise_raw);
+                // A 3x3 median, not a box: where the local estimate mistook an
+                // edge for noise, those pixels are a minority of the window.
+                median3(ctx, &bf.noise_raw, w, h, &mut bf.noise);
+                Ok(())
             }
-            (Some(bb), false) => {
-                for i in 0..3 * n {
-                    c0[i] = 0.5 * (a_irr[i] + bb[i]);
-                }
-            }
-            (None, _) => c0[..3 * n].copy_from_slice(&a_irr),
-        }
+        })?;
         if sure_single {
-            c0[3 * n..].copy_from_slice(&noise32.data);
+            bf.c0[3 * n..4 * n].copy_from_slice(&bf.noise);
         }
-        let nch = 3 * groups + usize::from(sure_single);
-        let _ = nch;
-        let mut cur = enc(3 * groups + usize::from(sure_single), &c0, Kind::Image);
-        // Reconstruction of the mean image, in f32: sum of beta * D, then c_N.
-        let mut recon = vec![0.0f32; 3 * n];
-        let isa = ctx.isa;
-        let params = self.params;
+        // The guides and the level-0 images in the storage precision (the
+        // frame's own f32 data when that is the precision).
+        let (noise_g, normal_g, position_g, depth_g, c0) = t.time("guides", || {
+            (
+                Held::new::<P>(&bf.noise, 1, w, h, Kind::Plain),
+                normal.map(|d| Held::new::<P>(d, 3, w, h, Kind::Unit)),
+                position.map(|d| Held::new::<P>(d, 3, w, h, Kind::Plain)),
+                depth.map(|d| Held::new::<P>(d, 1, w, h, Kind::Plain)),
+                Held::new::<P>(&bf.c0, nsrc, w, h, Kind::Image),
+            )
+        });
+        let guides = AtrousGuides {
+            noise: noise_g.view(1, w, h),
+            normal: normal_g.as_ref().map(|p| p.view(3, w, h)),
+            position: position_g.as_ref().map(|p| p.view(3, w, h)),
+            depth: depth_g.as_ref().map(|p| p.view(1, w, h)),
+        };
+        if self.sure {
+            bf.recon.fill(0.0);
+        }
+        let (isa, params) = (ctx.isa, self.params);
+        let source = if sure_pair { SureSource::Pair } else { SureSource::Single };
+        let frac = c0.frac();
+        bf.ping.frac = frac;
+        bf.pong.frac = frac;
+        let (mut src, mut dst) = (&mut bf.ping, &mut bf.pong);
         for level in 0..LEVELS {
-            let out_ch = 3 * groups + 2 * usize::from(sure_single);
-            let mut next = Planes::<P::Store>::new(out_ch, w, h).with_frac(cur.frac);
-            let cv = cur.view();
+            // Level 0 reads the prepared images; later levels the previous
+            // output's first nsrc planes.
+            let cv = if level == 0 { c0.view(nsrc, w, h) } else { src.view().channels_range(0, nsrc)? };
+            let dv = dst.view_mut();
             t.time("a-trous levels", || {
-                bands(ctx, next.view_mut(), 1, 0, |band, y0, _| {
+                bands(ctx, dv, 1, 0, |band, y0, _| {
                     atrous::step::<P>(isa, level, groups, sure_single, &params, &guides, &cv, band, y0)
                 })
             })?;
             if self.sure {
-                let cf = cur.decode::<P>();
-                let nf = next.decode::<P>();
-                let (e, s, d) = t.time("SURE terms", || sure_terms(&cf, &nf, groups, sure_single, n));
-                let es = Planes::from_vec(2, w, h, [e, s].concat());
-                let avg = t.time("SURE window", || box_average(ctx, &es, &zeros, SURE_RADIUS))?;
-                t.time("SURE pick", || {
-                    let dv = View::new(&d, 3, w, h).expect("shape");
-                    let ev = View::new(&avg.data[..n], 1, w, h).expect("shape");
-                    let sv = View::new(&avg.data[n..], 1, w, h).expect("shape");
-                    let mut rv = ViewMut::new(&mut recon, 3, w, h).expect("shape");
-                    atrous::sure_pick(&ev, &sv, &SURE_CANDIDATES, &dv, &mut rv)
-                })?;
+                let cur = if level == 0 { c0.data() } else { &src.data[..nsrc * n] };
+                let (cur, next) = ((cur, nsrc, frac), (&dst.data[..], nout, frac));
+                t.time("SURE shrinkage", || shrink::<P>(ctx, source, cur, next, &mut bf.recon, w, h))?;
             }
-            // Next level's input: the colour planes (+ the propagated variance).
-            cur = if sure_single {
-                let mut nx = Planes::<P::Store>::new(4, w, h).with_frac(next.frac);
-                nx.data.copy_from_slice(&next.data[..4 * n]);
-                nx
-            } else {
-                next
-            };
+            debug_assert_eq!(dst.channels, nout);
+            std::mem::swap(&mut src, &mut dst);
         }
-        // c_N of the mean image (+ the kept detail).
-        let last = cur.decode::<P>();
-        let mut out = vec![0.0f32; 3 * n];
-        for i in 0..3 * n {
-            out[i] = last[i] + recon[i];
-        }
+        // c_N of the first image (the last output, now in src), plus the kept detail.
+        let last = src;
+        let mut out = t.time("reconstruct", || {
+            let mut out = vec![0.0f32; 3 * n];
+            match as_f32(&last.data[..3 * n]) {
+                Some(c) => out.copy_from_slice(c),
+                None => P::decode(&last.data[..3 * n], &mut out, last.frac),
+            }
+            if self.sure {
+                for (o, r) in out.iter_mut().zip(&bf.recon) {
+                    *o += *r;
+                }
+            }
+            out
+        });
         if let Some(al) = albedo {
-            t.time("remodulate", || {
-                let alv = View::new(al, 3, w, h).expect("shape");
-                let src = out.clone();
+            t.time("remodulate", || -> Result<()> {
+                bf.out.copy_from_slice(&out);
                 tonemap::remodulate::<mcdenoise_core::F32>(
-                    isa,
-                    &View::new(&src, 3, w, h).expect("shape"),
-                    &alv,
+                    ctx.isa,
+                    &View::new(&bf.out, 3, w, h)?,
+                    &View::new(al, 3, w, h)?,
                     ALBEDO_EPS,
-                    &mut ViewMut::new(&mut out, 3, w, h).expect("shape"),
-                )
+                    &mut ViewMut::new(&mut out, 3, w, h)?,
+                )?;
+                Ok(())
             })?;
         }
         // The output passes through the pipeline's storage precision.
-        Ok(Planes::<P::Store>::encode::<P>(3, w, h, &out).decode::<P>())
-    }
-}
-
-/// Per-pixel SURE terms of one level: detail energy `e = sum_c D_c^2`, detail
-/// noise `s` (sum over channels) and the detail `D` of the mean image.
-fn sure_terms(cur: &[f32], next: &[f32], groups: usize, single: bool, n: usize) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
-    let mut e = vec![0.0f32; n];
-    let mut s = vec![0.0f32; n];
-    let mut d = vec![0.0f32; 3 * n];
-    for p in 0..n {
-        let (mut ee, mut ss) = (0.0f32, 0.0f32);
-        for c in 0..3 {
-            let i = c * n + p;
-            let (dm, noise) = if groups == 2 {
-                let dh = cur[3 * n + i] - next[3 * n + i];
-                (cur[i] - next[i], dh * dh)
-            } else if single {
-                // Var(D) = Var(c_i)(1 - 2 w_centre) + Var(c_{i+1}), per channel.
-                let var_i = cur[3 * n + p];
-                let var_n = next[3 * n + p];
-                let wc = next[4 * n + p];
-                (cur[i] - next[i], (var_i * (1.0 - 2.0 * wc) + var_n).max(0.0))
-            } else {
-                (cur[i] - next[i], 0.0)
-            };
-            d[i] = dm;
-            ee += dm * dm;
-            ss += noise;
+        if as_store::<P::Store>(&out).is_none() {
+            out = Planes::<P::Store>::encode::<P>(3, w, h, &out).decode::<P>();
         }
-        e[p] = ee;
-        s[p] = ss;
+        Ok(out)
     }
-    (e, s, d)
 }
 
 /// 3x3 median (of the in-image pixels), scaled by 1.27: the median of nine
-/// chi-square(3)/3 variates is about 0.79 of their mean.
-fn median3(v: &[f32], w: usize, h: usize) -> Vec<f32> {
-    let mut out = vec![0.0f32; w * h];
-    let mut nb = [0.0f32; 9];
-    for py in 0..h {
-        for px in 0..w {
+/// chi-square(3)/3 variates is about 0.79 of their mean. Rows in parallel.
+fn median3(ctx: &Ctx, v: &[f32], w: usize, h: usize, out: &mut [f32]) {
+    ctx.pool.planes(vec![out], w, |start, runs| {
+        let py = start / w;
+        let mut nb = [0.0f32; 9];
+        for (px, o) in runs[0].iter_mut().enumerate() {
             let mut m = 0;
             for qy in py.saturating_sub(1)..(py + 2).min(h) {
                 for qx in px.saturating_sub(1)..(px + 2).min(w) {
@@ -333,10 +515,9 @@ fn median3(v: &[f32], w: usize, h: usize) -> Vec<f32> {
             let vals = &mut nb[..m];
             vals.sort_unstable_by(f32::total_cmp);
             let med = if m % 2 == 1 { vals[m / 2] } else { 0.5 * (vals[m / 2 - 1] + vals[m / 2]) };
-            out[py * w + px] = 1.27 * med;
+            *o = 1.27 * med;
         }
-    }
-    out
+    });
 }
 
 /// The local noise variance of a single estimate: `0.84 |y - median of the
@@ -344,12 +525,13 @@ fn median3(v: &[f32], w: usize, h: usize) -> Vec<f32> {
 /// edge from reading as noise: next to a light's edge the neighbours on the
 /// other side are a minority. For white noise `Var(median of 8) ~ 0.2 sigma^2`,
 /// hence `E|y - median|^2 ~ 1.2 sigma^2` and the factor 0.84. At borders the
-/// median of the neighbours there is.
-fn local_noise(y: &[f32], w: usize, h: usize, v: &mut [f32]) {
+/// median of the neighbours there is. Rows in parallel.
+fn local_noise(ctx: &Ctx, y: &[f32], w: usize, h: usize, v: &mut [f32]) {
     let n = w * h;
-    let mut nb = [0.0f32; 8];
-    for py in 0..h {
-        for px in 0..w {
+    ctx.pool.planes(vec![v], w, |start, runs| {
+        let py = start / w;
+        let mut nb = [0.0f32; 8];
+        for (px, o) in runs[0].iter_mut().enumerate() {
             let mut s = 0.0;
             for c in 0..3 {
                 let mut m = 0;
@@ -369,7 +551,7 @@ fn local_noise(y: &[f32], w: usize, h: usize, v: &mut [f32]) {
                     s += 0.84 * d * d;
                 }
             }
-            v[py * w + px] = s / 3.0;
+            *o = s / 3.0;
         }
-    }
+    });
 }

@@ -1,0 +1,237 @@
+//! SURE shrinkage of one level's detail, in one streaming pass per band:
+//! per-pixel terms, their 5x5 window sums (a ring of horizontally summed
+//! rows), the risk-minimising weight and the update of the reconstruction.
+//!
+//! The same source is compiled three times: portable, and inside AVX2 and
+//! AVX-512 `target_feature` functions where the compiler vectorises the row
+//! loops. Rust never contracts `a * b + c` into an FMA, so the three give
+//! bit-identical results.
+
+use super::{check_candidates, SureSource, SURE_RADIUS};
+use crate::error::{check_shape, Result, Shape};
+use crate::precision::FloatElement;
+use crate::unfold::check_band;
+use crate::view::{View, ViewMut};
+use crate::Isa;
+
+/// Rows of the window.
+const WIN: usize = 2 * SURE_RADIUS + 1;
+
+/// Scratch words [`sure_shrink`] needs for images `width` wide.
+pub fn sure_scratch_len(width: usize) -> usize {
+    (2 * WIN + 6) * width
+}
+
+/// Adds `beta(p) * D(p)` of one level to the reconstruction rows `y0 ..`.
+///
+/// `D = c_i - c_{i+1}` is the detail of the first image; `beta` minimises
+/// the SURE `(1 - b)^2 E + (2 b - 1) S` among `candidates` (the first on
+/// ties), with `E` and `S` the sums over the 5x5 window (clipped at the
+/// borders) of the detail energy `e = sum_c D_c^2` and its noise variance
+/// `s`. The noise comes from `source`:
+/// - [`SureSource::Pair`]: `cur = [M, H]`, `next = [M', H']` (6 planes each),
+///   `s = sum_c (H_c - H'_c)^2`;
+/// - [`SureSource::Single`]: `cur = [c, v]` (4 planes), `next = [c', v', w]`
+///   (5 planes: the step's output with variance), `s = 3 (v (1 - 2 w) + v')`,
+///   clamped at 0.
+///
+/// `recon` holds 3 planes (f32) of the band's rows; `scratch` at least
+/// [`sure_scratch_len`] words.
+#[allow(clippy::too_many_arguments)]
+pub fn sure_shrink<S: FloatElement>(
+    isa: Isa,
+    source: SureSource,
+    candidates: &[f32],
+    cur: &View<'_, S>,
+    next: &View<'_, S>,
+    recon: &mut ViewMut<'_, f32>,
+    y0: usize,
+    scratch: &mut [f32],
+) -> Result<()> {
+    isa.check()?;
+    check_candidates(candidates)?;
+    let s = cur.shape();
+    let (nc, nn) = match source {
+        SureSource::Pair => (6, 6),
+        SureSource::Single => (4, 5),
+    };
+    let plane = |c| Shape::new(c, s.width, s.height);
+    check_shape("SURE level input", plane(nc), s)?;
+    check_shape("SURE level output", plane(nn), next.shape())?;
+    check_band("SURE reconstruction", plane(3), recon.shape(), y0)?;
+    let need = sure_scratch_len(s.width);
+    if scratch.len() < need {
+        return Err(crate::Error::ScratchTooSmall { needed: need, got: scratch.len() });
+    }
+    if recon.height() == 0 || s.width == 0 {
+        return Ok(());
+    }
+    let scratch = &mut scratch[..need];
+    match isa {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the ISA was checked.
+        Isa::Avx2 => unsafe { run_avx2(source, candidates, cur, next, recon, y0, scratch) },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the ISA was checked.
+        Isa::Avx512 => unsafe { run_avx512(source, candidates, cur, next, recon, y0, scratch) },
+        _ => run(source, candidates, cur, next, recon, y0, scratch),
+    }
+    Ok(())
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma,f16c")]
+unsafe fn run_avx2<S: FloatElement>(
+    source: SureSource,
+    candidates: &[f32],
+    cur: &View<'_, S>,
+    next: &View<'_, S>,
+    recon: &mut ViewMut<'_, f32>,
+    y0: usize,
+    scratch: &mut [f32],
+) {
+    run(source, candidates, cur, next, recon, y0, scratch)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl,avx2,fma,f16c")]
+unsafe fn run_avx512<S: FloatElement>(
+    source: SureSource,
+    candidates: &[f32],
+    cur: &View<'_, S>,
+    next: &View<'_, S>,
+    recon: &mut ViewMut<'_, f32>,
+    y0: usize,
+    scratch: &mut [f32],
+) {
+    run(source, candidates, cur, next, recon, y0, scratch)
+}
+
+/// Per-pixel terms of row `y`: detail energy into `e`, noise into `s`.
+#[inline(always)]
+fn terms<S: FloatElement>(source: SureSource, cur: &View<'_, S>, next: &View<'_, S>, y: usize, e: &mut [f32], s: &mut [f32]) {
+    let w = e.len();
+    e.fill(0.0);
+    s.fill(0.0);
+    for c in 0..3 {
+        let (a, b) = (&cur.row(c, y)[..w], &next.row(c, y)[..w]);
+        for x in 0..w {
+            let d = a[x].to_f32() - b[x].to_f32();
+            e[x] += d * d;
+        }
+    }
+    match source {
+        SureSource::Pair => {
+            for c in 3..6 {
+                let (a, b) = (&cur.row(c, y)[..w], &next.row(c, y)[..w]);
+                for x in 0..w {
+                    let d = a[x].to_f32() - b[x].to_f32();
+                    s[x] += d * d;
+                }
+            }
+        }
+        SureSource::Single => {
+            let (v, v1, wc) = (&cur.row(3, y)[..w], &next.row(3, y)[..w], &next.row(4, y)[..w]);
+            for x in 0..w {
+                let var = v[x].to_f32() * (1.0 - 2.0 * wc[x].to_f32()) + v1[x].to_f32();
+                s[x] = 3.0 * if var > 0.0 { var } else { 0.0 };
+            }
+        }
+    }
+}
+
+/// `out[x] = sum of t[x - 2 ..= x + 2]` inside the row, left to right.
+#[inline(always)]
+fn hsum(t: &[f32], out: &mut [f32]) {
+    let w = t.len();
+    let r = SURE_RADIUS;
+    let clipped = |x: usize| {
+        let mut a = 0.0;
+        for &v in &t[x.saturating_sub(r)..(x + r + 1).min(w)] {
+            a += v;
+        }
+        a
+    };
+    if w <= 2 * r {
+        for (x, o) in out.iter_mut().enumerate().take(w) {
+            *o = clipped(x);
+        }
+        return;
+    }
+    for x in (0..r).chain(w - r..w) {
+        out[x] = clipped(x);
+    }
+    // The interior, where all five are inside: the same order, vectorisable.
+    let n = w - 2 * r;
+    let (o, t0, t1, t2, t3, t4) = (&mut out[r..r + n], &t[..n], &t[1..1 + n], &t[2..2 + n], &t[3..3 + n], &t[4..4 + n]);
+    for x in 0..n {
+        o[x] = ((((0.0 + t0[x]) + t1[x]) + t2[x]) + t3[x]) + t4[x];
+    }
+}
+
+#[inline(always)]
+fn run<S: FloatElement>(
+    source: SureSource,
+    candidates: &[f32],
+    cur: &View<'_, S>,
+    next: &View<'_, S>,
+    recon: &mut ViewMut<'_, f32>,
+    y0: usize,
+    scratch: &mut [f32],
+) {
+    let (w, h) = (cur.width(), cur.height());
+    let r = SURE_RADIUS;
+    let (te, rest) = scratch.split_at_mut(w);
+    let (ts, rest) = rest.split_at_mut(w);
+    let (ring_e, rest) = rest.split_at_mut(WIN * w);
+    let (ring_s, rest) = rest.split_at_mut(WIN * w);
+    let (se, rest) = rest.split_at_mut(w);
+    let (ss, rest) = rest.split_at_mut(w);
+    let (best_r, rest) = rest.split_at_mut(w);
+    let best_b = &mut rest[..w];
+    let y1 = y0 + recon.height();
+    // Next row whose horizontal sums enter the ring.
+    let mut filled = y0.saturating_sub(r);
+    for y in y0..y1 {
+        let (lo, hi) = (y.saturating_sub(r), (y + r + 1).min(h));
+        while filled < hi {
+            terms(source, cur, next, filled, te, ts);
+            let slot = filled % WIN;
+            hsum(te, &mut ring_e[slot * w..(slot + 1) * w]);
+            hsum(ts, &mut ring_s[slot * w..(slot + 1) * w]);
+            filled += 1;
+        }
+        // Vertical sums, rows top to bottom.
+        se.fill(0.0);
+        ss.fill(0.0);
+        for q in lo..hi {
+            let slot = q % WIN;
+            let (re, rs) = (&ring_e[slot * w..(slot + 1) * w], &ring_s[slot * w..(slot + 1) * w]);
+            for x in 0..w {
+                se[x] += re[x];
+                ss[x] += rs[x];
+            }
+        }
+        // The risk-minimising weight, the first candidate on ties (as
+        // [`super::best_beta`]).
+        best_r.fill(f32::INFINITY);
+        best_b.fill(candidates[0]);
+        for &b in candidates {
+            let (ce, cs) = ((1.0 - b) * (1.0 - b), 2.0 * b - 1.0);
+            for x in 0..w {
+                let risk = ce * se[x] + cs * ss[x];
+                if risk < best_r[x] {
+                    best_r[x] = risk;
+                    best_b[x] = b;
+                }
+            }
+        }
+        for c in 0..3 {
+            let (a, b) = (&cur.row(c, y)[..w], &next.row(c, y)[..w]);
+            let o = &mut recon.row_mut(c, y - y0)[..w];
+            for x in 0..w {
+                o[x] += best_b[x] * (a[x].to_f32() - b[x].to_f32());
+            }
+        }
+    }
+}
