@@ -114,12 +114,7 @@ impl Pool {
     /// elements and calls `f(start, runs)` on each run in parallel, `runs`
     /// holding the same run of every plane. For per-pixel passes over planar
     /// images.
-    pub fn planes(
-        &self,
-        planes: Vec<&mut [f32]>,
-        chunk: usize,
-        f: impl Fn(usize, &mut [&mut [f32]]) + Sync + Send,
-    ) {
+    pub fn planes(&self, planes: Vec<&mut [f32]>, chunk: usize, f: impl Fn(usize, &mut [&mut [f32]]) + Sync + Send) {
         let n = planes.first().map_or(0, |p| p.len());
         assert!(planes.iter().all(|p| p.len() == n), "planes of different lengths");
         let chunk = chunk.max(1);

@@ -109,7 +109,14 @@ unsafe fn run_avx512<S: FloatElement>(
 
 /// Per-pixel terms of row `y`: detail energy into `e`, noise into `s`.
 #[inline(always)]
-fn terms<S: FloatElement>(source: SureSource, cur: &View<'_, S>, next: &View<'_, S>, y: usize, e: &mut [f32], s: &mut [f32]) {
+fn terms<S: FloatElement>(
+    source: SureSource,
+    cur: &View<'_, S>,
+    next: &View<'_, S>,
+    y: usize,
+    e: &mut [f32],
+    s: &mut [f32],
+) {
     let w = e.len();
     e.fill(0.0);
     s.fill(0.0);

@@ -99,7 +99,19 @@ impl<P: HostPrecision> Atrous<P> {
         if let Some(phi) = phi_color {
             params.phi_color = phi;
         }
-        Ok(Atrous { name, plan, sure, pair, demod, use_normal, use_position, use_depth, params, bufs: None, _p: PhantomData })
+        Ok(Atrous {
+            name,
+            plan,
+            sure,
+            pair,
+            demod,
+            use_normal,
+            use_position,
+            use_depth,
+            params,
+            bufs: None,
+            _p: PhantomData,
+        })
     }
 }
 
@@ -378,14 +390,8 @@ impl<P: HostPrecision> Denoiser for Atrous<P> {
 }
 
 /// The frame's buffers a run reads.
-type Inputs<'a> = (
-    &'a [f32],
-    Option<&'a [f32]>,
-    Option<&'a [f32]>,
-    Option<&'a [f32]>,
-    Option<&'a [f32]>,
-    Option<&'a [f32]>,
-);
+type Inputs<'a> =
+    (&'a [f32], Option<&'a [f32]>, Option<&'a [f32]>, Option<&'a [f32]>, Option<&'a [f32]>, Option<&'a [f32]>);
 
 impl<P: HostPrecision> Atrous<P> {
     #[allow(clippy::type_complexity)]
