@@ -16,6 +16,8 @@ pub(crate) mod scalar;
 
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod avx2;
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod avx512;
 
 /// Output rows per tile of the box-sum path.
 pub(crate) const TILE_H: usize = 48;
@@ -99,9 +101,15 @@ pub(crate) fn fused<S: FloatElement>(
         // SAFETY: the caller checked support.
         (Isa::Avx2 | Isa::Avx512, WindowPath::Direct) => unsafe { avx2::direct(inp, dst, y0) },
         #[cfg(target_arch = "x86_64")]
-        (Isa::Avx2 | Isa::Avx512, WindowPath::BoxSum) => {
+        (Isa::Avx2, WindowPath::BoxSum) => {
             // SAFETY: the caller checked support.
             let ops = unsafe { avx2::Avx2Ops::new() };
+            boxsum(&ops, inp, dst, y0, scratch)
+        }
+        #[cfg(target_arch = "x86_64")]
+        (Isa::Avx512, WindowPath::BoxSum) => {
+            // SAFETY: the caller checked support.
+            let ops = unsafe { avx512::Avx512Ops::new() };
             boxsum(&ops, inp, dst, y0, scratch)
         }
         _ => fused_scalar::<S, f32>(path, inp, dst, y0, scratch),
@@ -301,6 +309,9 @@ fn tile<S: FloatElement, A: Real, O: Ops<A>>(
         let sy0 = cell.saturating_sub(r);
         let sy1 = (cell + TILE_H + r).min(h);
         for yy in sy0..sy1 {
+            if yy + 4 < sy1 {
+                o.prefetch(&imp.row(i, yy + 4)[xs..xe]);
+            }
             shift = shift.max(o.row_max(&imp.row(i, yy)[xs..xe]));
         }
         let shift = A::of(clamp_logit(shift));
