@@ -9,8 +9,8 @@ pub(crate) mod scalar;
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod avx2;
 
-/// Scratch words: the scalar row accumulator, or (AVX2, f16) more for the ring
-/// of widened source rows; the larger of the two so any ISA can run.
+/// Scratch words: the scalar row accumulator, or (AVX2) two row accumulators
+/// and (f16) the ring of widened source rows; the larger so any ISA can run.
 pub(crate) fn scratch_len<S: FloatElement>(k: usize, channels: usize, width: usize) -> usize {
     #[cfg(target_arch = "x86_64")]
     {
