@@ -37,7 +37,7 @@ pub(crate) fn scratch_len(k: usize, channels: usize, width: usize, f16: bool) ->
 
 /// Widens row `sy` of every channel into ring slot `sy % k`.
 #[target_feature(enable = "avx2,fma,f16c")]
-fn fill_slot<S: FloatElement>(src: &View<'_, S>, sy: usize, k: usize, ring: &mut [f32]) {
+pub(super) fn fill_slot<S: FloatElement>(src: &View<'_, S>, sy: usize, k: usize, ring: &mut [f32]) {
     let (w, ch) = (src.width(), src.channels());
     let slot = sy % k;
     for c in 0..ch {

@@ -8,6 +8,8 @@ pub(crate) mod scalar;
 
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod avx2;
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod avx512;
 
 /// Scratch words: the scalar row accumulator, or (AVX2) two row accumulators
 /// and (f16) the ring of widened source rows; the larger so any ISA can run.
@@ -35,7 +37,10 @@ pub(crate) fn run<S: FloatElement, A: crate::real::Real>(
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked `isa.is_supported()`.
-        Isa::Avx2 | Isa::Avx512 if A::IS_F32 => unsafe { avx2::run(k, kernel, src, dst, y0, scratch) },
+        Isa::Avx2 if A::IS_F32 => unsafe { avx2::run(k, kernel, src, dst, y0, scratch) },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: as above.
+        Isa::Avx512 if A::IS_F32 => unsafe { avx512::run(k, kernel, src, dst, y0, scratch) },
         _ => scalar::run::<S, A>(k, kernel, src, dst, y0, scratch),
     }
 }
