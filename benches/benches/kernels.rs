@@ -176,6 +176,12 @@ fn bench_conv(c: &mut Criterion) {
         g.throughput(Throughput::Elements((iters * 12 * 8 * 2) as u64));
         g.bench_function("fma_peak/1t", |b| b.iter(|| black_box(fma_peak(black_box(iters)))));
     }
+    if Isa::Avx512.is_supported() {
+        // Same iterations at twice the lanes: compare against twice the FLOPs.
+        let iters = 10_000_000;
+        g.throughput(Throughput::Elements((iters * 12 * 16 * 2) as u64));
+        g.bench_function("fma_peak_avx512/1t", |b| b.iter(|| black_box(fma_peak512(black_box(iters)))));
+    }
     g.finish();
 }
 

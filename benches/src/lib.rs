@@ -165,6 +165,31 @@ pub fn fma_peak(iters: usize) -> f32 {
     unsafe { inner(iters) }
 }
 
+/// The AVX-512 twin of [`fma_peak`]: twelve independent 16-lane FMA chains.
+/// Panics unless AVX-512F is available (the bench checks first).
+pub fn fma_peak512(iters: usize) -> f32 {
+    #[target_feature(enable = "avx512f")]
+    fn inner(iters: usize) -> f32 {
+        use std::arch::x86_64::*;
+        let m = _mm512_set1_ps(0.999_999);
+        let a = _mm512_set1_ps(1.0e-7);
+        let mut acc = [_mm512_set1_ps(1.0); 12];
+        for _ in 0..iters {
+            for v in acc.iter_mut() {
+                *v = _mm512_fmadd_ps(*v, m, a);
+            }
+        }
+        let mut s = _mm512_setzero_ps();
+        for v in acc {
+            s = _mm512_add_ps(s, v);
+        }
+        _mm512_reduce_add_ps(s)
+    }
+    assert!(std::is_x86_feature_detected!("avx512f"));
+    // SAFETY: checked just above.
+    unsafe { inner(iters) }
+}
+
 /// A 1280x720 frame made by tiling the 256x256 Cornell-box fixture (16 spp,
 /// with its second estimate, albedo, normal, depth and position), so the
 /// method benches run on rendered content at the bench size.

@@ -127,6 +127,30 @@ fn avx512() -> bool {
     false
 }
 
+/// AVX512_VNNI (CPUID leaf 7, ECX bit 11) beside [`Isa::Avx512`]: the
+/// fixed-point convolution's AVX-512 kernel uses `vpdpwssd` when it is there
+/// (the same exact sums as `vpmaddwd` + `vpaddd`).
+#[cfg(target_arch = "x86_64")]
+#[allow(unused_unsafe)]
+pub(crate) fn avx512_vnni() -> bool {
+    use core::sync::atomic::{AtomicU8, Ordering};
+    if !avx512() {
+        return false;
+    }
+    static STATE: AtomicU8 = AtomicU8::new(0);
+    match STATE.load(Ordering::Relaxed) {
+        1 => false,
+        2 => true,
+        _ => {
+            // SAFETY: the AVX2 probe behind avx512() checked max_leaf >= 7.
+            let l7 = unsafe { core::arch::x86_64::__cpuid_count(7, 0) };
+            let present = l7.ecx & (1 << 11) != 0;
+            STATE.store(if present { 2 } else { 1 }, Ordering::Relaxed);
+            present
+        }
+    }
+}
+
 /// Leaf 7: AVX512F (EBX bit 16), DQ (17), BW (30), VL (31); XCR0 bits 5-7:
 /// the OS saves the opmask registers and the upper ZMM state (checked after
 /// the AVX2 probe, which established OSXSAVE).

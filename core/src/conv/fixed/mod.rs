@@ -12,6 +12,8 @@ pub(crate) mod scalar;
 
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod avx2;
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod avx512;
 
 pub(crate) fn forward(
     isa: Isa,
@@ -24,7 +26,10 @@ pub(crate) fn forward(
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked support.
-        Isa::Avx2 | Isa::Avx512 => unsafe { avx2::forward(layer, src, dst, y0, scratch) },
+        Isa::Avx2 => unsafe { avx2::forward(layer, src, dst, y0, scratch) },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the caller checked support; VNNI is probed here.
+        Isa::Avx512 => unsafe { avx512::forward(layer, src, dst, y0, scratch, crate::isa::avx512_vnni()) },
         _ => {
             let _ = scratch;
             scalar::forward(layer, src, dst, y0)

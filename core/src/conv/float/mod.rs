@@ -9,6 +9,8 @@ pub(crate) mod scalar;
 
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod avx2;
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod avx512;
 
 pub(crate) fn forward<S: FloatElement, A: crate::real::Real>(
     isa: Isa,
@@ -21,7 +23,10 @@ pub(crate) fn forward<S: FloatElement, A: crate::real::Real>(
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the caller checked support.
-        Isa::Avx2 | Isa::Avx512 if A::IS_F32 => unsafe { avx2::forward(layer, src, dst, y0, scratch) },
+        Isa::Avx2 if A::IS_F32 => unsafe { avx2::forward(layer, src, dst, y0, scratch) },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the caller checked support.
+        Isa::Avx512 if A::IS_F32 => unsafe { avx512::forward(layer, src, dst, y0, scratch) },
         _ => scalar::forward::<S, A>(layer, src, dst, y0, scratch),
     }
 }

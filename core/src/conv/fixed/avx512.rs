@@ -1,0 +1,266 @@
+//! AVX-512 fixed-point convolution: the AVX2 scheme ([`super::avx2`]) at
+//! thirty-two pixels a block. Taps go in pairs, the two input rows are
+//! interleaved per 128-bit lane and multiplied-and-added with each output
+//! channel's broadcast weight pair: `vpdpwssd` (AVX512-VNNI, 32 products
+//! into 16 sums per instruction) where the CPU has it, `vpmaddwd` + `vpaddd`
+//! otherwise; both are the same exact i32 sums, so the output is the same
+//! bits as every other path. Blocks of up to seven output channels keep 14
+//! accumulators in registers; border columns use the scalar pixel.
+
+use core::arch::x86_64::*;
+
+use super::{finish, scalar, shift};
+use crate::conv::{Activation, Conv2d};
+use crate::fixed::{ld, KERNEL_FRAC, QMAX};
+use crate::view::{View, ViewMut};
+
+const MAX_OB: usize = 7;
+
+/// One valid tap of an output row: input plane, input row, column offset.
+#[derive(Clone, Copy, Default)]
+struct Tap {
+    ci: usize,
+    sy: usize,
+    kx: usize,
+}
+
+/// # Safety
+/// AVX-512 F/BW/DQ/VL and AVX2 must be supported; with `vnni`, AVX512-VNNI too.
+#[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl,avx2,fma")]
+pub(crate) unsafe fn forward(
+    layer: &Conv2d<'_, i16>,
+    src: &View<'_, i16>,
+    dst: &mut ViewMut<'_, i16>,
+    y0: usize,
+    packed: &mut [i32],
+    vnni: bool,
+) {
+    let (w, h) = (src.width(), src.height());
+    let k = layer.k;
+    let p = k / 2;
+    let s = shift(layer, src, dst);
+    let per = layer.cin * k * k;
+    let nblocks = layer.cout.div_ceil(MAX_OB);
+    // acc + 2^(s-1) stays below 2^31 for s <= 15 under the layer's bit budget.
+    let vec_ok = s > 0 && s <= 15;
+    let mut taps = [Tap::default(); 16 * 25];
+    let mut packed_for = None::<(usize, usize)>;
+    for yo in 0..dst.height() {
+        let y = y0 + yo;
+        let ky_lo = p.saturating_sub(y);
+        let ky_hi = k.min(h + p - y);
+        // The valid taps of this row, in (ci, ky, kx) order.
+        let mut nt = 0;
+        for ci in 0..layer.cin {
+            for ky in ky_lo..ky_hi {
+                for kx in 0..k {
+                    if nt < taps.len() {
+                        taps[nt] = Tap { ci, sy: y + ky - p, kx };
+                    }
+                    nt += 1;
+                }
+            }
+        }
+        let fits = nt <= taps.len() && nt.div_ceil(2) * layer.cout <= packed.len();
+        if vec_ok && fits && packed_for != Some((ky_lo, ky_hi)) {
+            // Weight pairs of the valid taps, per output channel: (w_2i, w_2i+1) as one i32.
+            let npairs = nt.div_ceil(2);
+            for co in 0..layer.cout {
+                let widx = |n: usize| -> i32 {
+                    if n >= nt {
+                        return 0;
+                    }
+                    let (ci, r) = (n / ((ky_hi - ky_lo) * k), n % ((ky_hi - ky_lo) * k));
+                    let (ky, kx) = (ky_lo + r / k, r % k);
+                    ld(layer.weights[co * per + (ci * k + ky) * k + kx])
+                };
+                for pi in 0..npairs {
+                    let (a, b) = (widx(2 * pi), widx(2 * pi + 1));
+                    packed[co * npairs + pi] = ((a as u16 as u32) | ((b as u16 as u32) << 16)) as i32;
+                }
+            }
+            packed_for = Some((ky_lo, ky_hi));
+        }
+        let npairs = nt.div_ceil(2);
+        let mut co0 = 0;
+        for b in 0..nblocks {
+            let ob = layer.cout / nblocks + usize::from(b < layer.cout % nblocks);
+            let mut x = p;
+            if vec_ok && fits {
+                let ctx = Block { src, taps: &taps[..nt], packed: &packed[co0 * npairs..], npairs, x: 0, s, p };
+                macro_rules! run {
+                    ($ob:literal) => {{
+                        let go = |bl: &Block<'_, '_>, dst: &mut ViewMut<'_, i16>| {
+                            // SAFETY: the columns of the block are inside the row (below).
+                            unsafe {
+                                if vnni {
+                                    block_vnni::<$ob>(layer, bl, dst, co0, yo)
+                                } else {
+                                    block_bw::<$ob>(layer, bl, dst, co0, yo)
+                                }
+                            }
+                        };
+                        while x + 32 + p <= w {
+                            // Columns x - p .. x + 32 + p are inside the row.
+                            go(&Block { x, ..ctx.clone() }, dst);
+                            x += 32;
+                        }
+                        // The tail: one more block ending at the last interior column,
+                        // overlapping the previous one (same values written twice).
+                        if x < w - p && w >= 32 + 2 * p {
+                            go(&Block { x: w - p - 32, ..ctx.clone() }, dst);
+                            x = w - p;
+                        }
+                    }};
+                }
+                match ob {
+                    1 => run!(1),
+                    2 => run!(2),
+                    3 => run!(3),
+                    4 => run!(4),
+                    5 => run!(5),
+                    6 => run!(6),
+                    _ => run!(7),
+                }
+            }
+            for co in co0..co0 + ob {
+                for xx in (0..p.min(w)).chain(x.max(p.min(w))..w) {
+                    let acc = scalar::pixel(layer, src, co, y, xx);
+                    dst.row_mut(co, yo)[xx] = finish(layer, co, acc, s);
+                }
+            }
+            co0 += ob;
+        }
+    }
+}
+
+struct Block<'c, 'a> {
+    src: &'c View<'a, i16>,
+    taps: &'c [Tap],
+    packed: &'c [i32],
+    npairs: usize,
+    x: usize,
+    s: i32,
+    p: usize,
+}
+
+impl Clone for Block<'_, '_> {
+    fn clone(&self) -> Self {
+        Block { ..*self }
+    }
+}
+
+/// # Safety
+/// AVX-512 F/BW/DQ/VL and AVX512-VNNI; as [`block`].
+#[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl,avx512vnni,avx2,fma")]
+unsafe fn block_vnni<const OB: usize>(
+    layer: &Conv2d<'_, i16>,
+    b: &Block<'_, '_>,
+    dst: &mut ViewMut<'_, i16>,
+    co0: usize,
+    yo: usize,
+) {
+    // SAFETY: forwarded.
+    unsafe { block::<OB, true>(layer, b, dst, co0, yo) }
+}
+
+/// # Safety
+/// AVX-512 F/BW/DQ/VL; as [`block`].
+#[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl,avx2,fma")]
+unsafe fn block_bw<const OB: usize>(
+    layer: &Conv2d<'_, i16>,
+    b: &Block<'_, '_>,
+    dst: &mut ViewMut<'_, i16>,
+    co0: usize,
+    yo: usize,
+) {
+    // SAFETY: forwarded.
+    unsafe { block::<OB, false>(layer, b, dst, co0, yo) }
+}
+
+/// Output channels `co0 .. co0 + OB`, pixels `x .. x + 32` of row `yo`.
+///
+/// # Safety
+/// AVX-512 (and VNNI when `VNNI`); columns `x - p .. x + 32 + p` inside the
+/// image; `0 < s <= 15`; `packed` holds `OB * npairs` pairs.
+#[inline(always)]
+unsafe fn block<const OB: usize, const VNNI: bool>(
+    layer: &Conv2d<'_, i16>,
+    b: &Block<'_, '_>,
+    dst: &mut ViewMut<'_, i16>,
+    co0: usize,
+    yo: usize,
+) {
+    // SAFETY: only reached through block_vnni / block_bw, whose target
+    // features cover every intrinsic here (VNNI only when VNNI is set).
+    unsafe {
+        let zero = _mm512_setzero_si512();
+        let mut lo = [zero; OB];
+        let mut hi = [zero; OB];
+        let (x, p) = (b.x, b.p);
+        let floor = _mm512_set1_epi16(-QMAX as i16);
+        let load = |t: usize| -> __m512i {
+            match b.taps.get(t) {
+                // SAFETY: in range (caller); -32768 reads as -32767.
+                Some(tp) => {
+                    _mm512_max_epi16(_mm512_loadu_si512(b.src.ptr(tp.ci, tp.sy).add(x + tp.kx - p) as *const _), floor)
+                }
+                None => zero,
+            }
+        };
+        assert!(b.packed.len() >= OB * b.npairs);
+        let wp = b.packed.as_ptr();
+        for pi in 0..b.npairs {
+            let (xa, xb) = (load(2 * pi), load(2 * pi + 1));
+            let il = _mm512_unpacklo_epi16(xa, xb);
+            let ih = _mm512_unpackhi_epi16(xa, xb);
+            for o in 0..OB {
+                // SAFETY: o * npairs + pi < OB * npairs <= packed.len() (asserted).
+                let wv = _mm512_set1_epi32(*wp.add(o * b.npairs + pi));
+                if VNNI {
+                    lo[o] = _mm512_dpwssd_epi32(lo[o], il, wv);
+                    hi[o] = _mm512_dpwssd_epi32(hi[o], ih, wv);
+                } else {
+                    lo[o] = _mm512_add_epi32(lo[o], _mm512_madd_epi16(il, wv));
+                    hi[o] = _mm512_add_epi32(hi[o], _mm512_madd_epi16(ih, wv));
+                }
+            }
+        }
+        let s = b.s;
+        let half = _mm512_set1_epi32(1 << (s - 1));
+        let sh = _mm_cvtsi32_si128(s);
+        for o in 0..OB {
+            let co = co0 + o;
+            let bias = _mm512_set1_epi32(layer.bias.map_or(0, |bb| ld(bb[co])));
+            let lim = _mm512_set1_epi32(super::PRE_ACT_MAX as i32);
+            let nlim = _mm512_set1_epi32(-super::PRE_ACT_MAX as i32);
+            let clampv = |v: __m512i| _mm512_max_epi32(_mm512_min_epi32(v, lim), nlim);
+            let mut l = clampv(_mm512_add_epi32(_mm512_sra_epi32(_mm512_add_epi32(lo[o], half), sh), bias));
+            let mut r = clampv(_mm512_add_epi32(_mm512_sra_epi32(_mm512_add_epi32(hi[o], half), sh), bias));
+            match layer.act {
+                Activation::Identity => {}
+                Activation::Relu => {
+                    l = _mm512_max_epi32(l, zero);
+                    r = _mm512_max_epi32(r, zero);
+                }
+                Activation::LeakyRelu(sl) => {
+                    let q = _mm512_set1_epi32(crate::fixed::from_f32(sl, KERNEL_FRAC) as i32);
+                    let rnd = _mm512_set1_epi32(1 << (KERNEL_FRAC - 1));
+                    let leak = |v: __m512i| {
+                        let m = _mm512_srai_epi32::<{ KERNEL_FRAC as u32 }>(_mm512_add_epi32(
+                            _mm512_mullo_epi32(v, q),
+                            rnd,
+                        ));
+                        _mm512_mask_blend_epi32(_mm512_cmpgt_epi32_mask(v, zero), m, v)
+                    };
+                    l = leak(l);
+                    r = leak(r);
+                }
+            }
+            // packs works per 128-bit lane, undoing the unpack's lane split.
+            let out = _mm512_max_epi16(_mm512_packs_epi32(l, r), floor);
+            // SAFETY: x + 32 <= width.
+            _mm512_storeu_si512(dst.ptr_mut(co, yo).add(x) as *mut _, out);
+        }
+    }
+}
