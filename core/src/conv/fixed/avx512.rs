@@ -264,3 +264,45 @@ unsafe fn block<const OB: usize, const VNNI: bool>(
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use std::vec::Vec;
+
+    use super::*;
+
+    /// The `vpdpwssd` and `vpmaddwd` + `vpaddd` kernels give the same bits
+    /// (only one of them runs through the public API on a given CPU).
+    #[test]
+    fn vnni_and_bw_kernels_agree() {
+        if !crate::isa::avx512_vnni() {
+            std::eprintln!("skipped: AVX512-VNNI is not supported on this CPU");
+            return;
+        }
+        let (w, h, cin, cout, k) = (75usize, 4usize, 5usize, 9usize, 3usize);
+        let mut seed = 0x2545_f491_u32;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed
+        };
+        let src: Vec<i16> = (0..cin * w * h).map(|_| (next() % 60001) as i16 - 30000).collect();
+        let weights: Vec<i16> = (0..cout * cin * k * k).map(|_| (next() % 801) as i16 - 400).collect();
+        let bias: Vec<i16> = (0..cout as i16).map(|i| i * 91 - 300).collect();
+        for act in [Activation::Identity, Activation::Relu, Activation::LeakyRelu(0.1)] {
+            let layer = Conv2d { k, cin, cout, weights: &weights, bias: Some(&bias), act, weight_frac: 10 };
+            let sv = View::new(&src, cin, w, h).unwrap().with_frac(8);
+            let run = |vnni: bool, fill: i16| {
+                let mut out = std::vec![fill; cout * w * h];
+                let mut packed = std::vec![0i32; crate::conv::conv2d_scratch_len::<crate::Fixed>(k, cin, cout, w)];
+                let mut dv = ViewMut::new(&mut out, cout, w, h).unwrap().with_frac(6);
+                // SAFETY: AVX-512 and VNNI were checked above.
+                unsafe { forward(&layer, &sv, &mut dv, 0, &mut packed, vnni) };
+                out
+            };
+            assert_eq!(run(true, 1111), run(false, -2222), "{act:?}");
+        }
+    }
+}
