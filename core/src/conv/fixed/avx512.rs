@@ -9,20 +9,12 @@
 
 use core::arch::x86_64::*;
 
-use super::{finish, scalar, shift};
+use super::{finish, pack_pairs, row_taps, scalar, shift, Tap};
 use crate::conv::{Activation, Conv2d};
 use crate::fixed::{ld, KERNEL_FRAC, QMAX};
 use crate::view::{View, ViewMut};
 
 const MAX_OB: usize = 7;
-
-/// One valid tap of an output row: input plane, input row, column offset.
-#[derive(Clone, Copy, Default)]
-struct Tap {
-    ci: usize,
-    sy: usize,
-    kx: usize,
-}
 
 /// # Safety
 /// AVX-512 F/BW/DQ/VL and AVX2 must be supported; with `vnni`, AVX512-VNNI too.
@@ -39,7 +31,6 @@ pub(crate) unsafe fn forward(
     let k = layer.k;
     let p = k / 2;
     let s = shift(layer, src, dst);
-    let per = layer.cin * k * k;
     let nblocks = layer.cout.div_ceil(MAX_OB);
     // acc + 2^(s-1) stays below 2^31 for s <= 15 under the layer's bit budget.
     let vec_ok = s > 0 && s <= 15;
@@ -47,38 +38,10 @@ pub(crate) unsafe fn forward(
     let mut packed_for = None::<(usize, usize)>;
     for yo in 0..dst.height() {
         let y = y0 + yo;
-        let ky_lo = p.saturating_sub(y);
-        let ky_hi = k.min(h + p - y);
-        // The valid taps of this row, in (ci, ky, kx) order.
-        let mut nt = 0;
-        for ci in 0..layer.cin {
-            for ky in ky_lo..ky_hi {
-                for kx in 0..k {
-                    if nt < taps.len() {
-                        taps[nt] = Tap { ci, sy: y + ky - p, kx };
-                    }
-                    nt += 1;
-                }
-            }
-        }
+        let (nt, ky_lo, ky_hi) = row_taps(layer, y, h, &mut taps);
         let fits = nt <= taps.len() && nt.div_ceil(2) * layer.cout <= packed.len();
         if vec_ok && fits && packed_for != Some((ky_lo, ky_hi)) {
-            // Weight pairs of the valid taps, per output channel: (w_2i, w_2i+1) as one i32.
-            let npairs = nt.div_ceil(2);
-            for co in 0..layer.cout {
-                let widx = |n: usize| -> i32 {
-                    if n >= nt {
-                        return 0;
-                    }
-                    let (ci, r) = (n / ((ky_hi - ky_lo) * k), n % ((ky_hi - ky_lo) * k));
-                    let (ky, kx) = (ky_lo + r / k, r % k);
-                    ld(layer.weights[co * per + (ci * k + ky) * k + kx])
-                };
-                for pi in 0..npairs {
-                    let (a, b) = (widx(2 * pi), widx(2 * pi + 1));
-                    packed[co * npairs + pi] = ((a as u16 as u32) | ((b as u16 as u32) << 16)) as i32;
-                }
-            }
+            pack_pairs(layer, nt, ky_lo, ky_hi, packed);
             packed_for = Some((ky_lo, ky_hi));
         }
         let npairs = nt.div_ceil(2);

@@ -37,6 +37,61 @@ pub(crate) fn forward(
     }
 }
 
+/// One valid tap of an output row: input plane, input row, column offset.
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+#[derive(Clone, Copy, Default)]
+pub(crate) struct Tap {
+    pub(crate) ci: usize,
+    pub(crate) sy: usize,
+    pub(crate) kx: usize,
+}
+
+/// The taps of output row `y` that fall inside the image, in `(ci, ky, kx)`
+/// order, into `taps` (as many as fit). Returns their count (possibly more
+/// than `taps.len()`) and the kernel rows `ky_lo .. ky_hi` they come from.
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+pub(crate) fn row_taps(layer: &Conv2d<'_, i16>, y: usize, h: usize, taps: &mut [Tap]) -> (usize, usize, usize) {
+    let (k, p) = (layer.k, layer.k / 2);
+    let ky_lo = p.saturating_sub(y);
+    let ky_hi = k.min(h + p - y);
+    let mut nt = 0;
+    for ci in 0..layer.cin {
+        for ky in ky_lo..ky_hi {
+            for kx in 0..k {
+                if let Some(t) = taps.get_mut(nt) {
+                    *t = Tap { ci, sy: y + ky - p, kx };
+                }
+                nt += 1;
+            }
+        }
+    }
+    (nt, ky_lo, ky_hi)
+}
+
+/// Weight pairs of the `nt` valid taps (kernel rows `ky_lo .. ky_hi`) per
+/// output channel, `(w_2i, w_2i+1)` as one i32 (low half first), at
+/// `packed[co * npairs + i]`; an odd count ends with a zero weight.
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+pub(crate) fn pack_pairs(layer: &Conv2d<'_, i16>, nt: usize, ky_lo: usize, ky_hi: usize, packed: &mut [i32]) {
+    let k = layer.k;
+    let per = layer.cin * k * k;
+    let npairs = nt.div_ceil(2);
+    for co in 0..layer.cout {
+        let widx = |n: usize| -> i32 {
+            if n >= nt {
+                return 0;
+            }
+            let (ci, r) = (n / ((ky_hi - ky_lo) * k), n % ((ky_hi - ky_lo) * k));
+            let (ky, kx) = (ky_lo + r / k, r % k);
+            ld(layer.weights[co * per + (ci * k + ky) * k + kx])
+        };
+        for pi in 0..npairs {
+            let (a, b) = (widx(2 * pi), widx(2 * pi + 1));
+            packed[co * npairs + pi] = ((a as u16 as u32) | ((b as u16 as u32) << 16)) as i32;
+        }
+    }
+}
+
 /// Bound of pre-activation values (2^17 - 1).
 pub(crate) const PRE_ACT_MAX: i64 = (1 << 17) - 1;
 
