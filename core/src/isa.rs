@@ -75,23 +75,30 @@ impl Isa {
     }
 }
 
+/// The result of `probe`, run once and kept in `state` (0: not probed yet,
+/// 1: absent, 2: present; a race only probes twice).
 #[cfg(target_arch = "x86_64")]
-fn avx2_fma_f16c() -> bool {
-    use core::sync::atomic::{AtomicU8, Ordering};
-    if cfg!(all(target_feature = "avx2", target_feature = "fma", target_feature = "f16c")) {
-        return true;
-    }
-    // 0: not probed yet, 1: absent, 2: present.
-    static STATE: AtomicU8 = AtomicU8::new(0);
-    match STATE.load(Ordering::Relaxed) {
+fn cached(state: &core::sync::atomic::AtomicU8, probe: fn() -> bool) -> bool {
+    use core::sync::atomic::Ordering;
+    match state.load(Ordering::Relaxed) {
         1 => false,
         2 => true,
         _ => {
-            let present = probe_avx2_fma_f16c();
-            STATE.store(if present { 2 } else { 1 }, Ordering::Relaxed);
+            let present = probe();
+            state.store(if present { 2 } else { 1 }, Ordering::Relaxed);
             present
         }
     }
+}
+
+#[cfg(target_arch = "x86_64")]
+fn avx2_fma_f16c() -> bool {
+    use core::sync::atomic::AtomicU8;
+    if cfg!(all(target_feature = "avx2", target_feature = "fma", target_feature = "f16c")) {
+        return true;
+    }
+    static STATE: AtomicU8 = AtomicU8::new(0);
+    cached(&STATE, probe_avx2_fma_f16c)
 }
 
 #[cfg(not(target_arch = "x86_64"))]
@@ -101,7 +108,7 @@ fn avx2_fma_f16c() -> bool {
 
 #[cfg(target_arch = "x86_64")]
 fn avx512() -> bool {
-    use core::sync::atomic::{AtomicU8, Ordering};
+    use core::sync::atomic::AtomicU8;
     if cfg!(all(
         target_feature = "avx512f",
         target_feature = "avx512bw",
@@ -111,15 +118,7 @@ fn avx512() -> bool {
         return true;
     }
     static STATE: AtomicU8 = AtomicU8::new(0);
-    match STATE.load(Ordering::Relaxed) {
-        1 => false,
-        2 => true,
-        _ => {
-            let present = probe_avx512();
-            STATE.store(if present { 2 } else { 1 }, Ordering::Relaxed);
-            present
-        }
-    }
+    cached(&STATE, probe_avx512)
 }
 
 #[cfg(not(target_arch = "x86_64"))]
@@ -133,22 +132,16 @@ fn avx512() -> bool {
 #[cfg(target_arch = "x86_64")]
 #[allow(unused_unsafe)]
 pub(crate) fn avx512_vnni() -> bool {
-    use core::sync::atomic::{AtomicU8, Ordering};
+    use core::sync::atomic::AtomicU8;
     if !avx512() {
         return false;
     }
     static STATE: AtomicU8 = AtomicU8::new(0);
-    match STATE.load(Ordering::Relaxed) {
-        1 => false,
-        2 => true,
-        _ => {
-            // SAFETY: the AVX2 probe behind avx512() checked max_leaf >= 7.
-            let l7 = unsafe { core::arch::x86_64::__cpuid_count(7, 0) };
-            let present = l7.ecx & (1 << 11) != 0;
-            STATE.store(if present { 2 } else { 1 }, Ordering::Relaxed);
-            present
-        }
-    }
+    cached(&STATE, || {
+        // SAFETY: the AVX2 probe behind avx512() checked max_leaf >= 7.
+        let l7 = unsafe { core::arch::x86_64::__cpuid_count(7, 0) };
+        l7.ecx & (1 << 11) != 0
+    })
 }
 
 /// Leaf 7: AVX512F (EBX bit 16), DQ (17), BW (30), VL (31); XCR0 bits 5-7:

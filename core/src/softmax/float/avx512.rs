@@ -340,13 +340,6 @@ impl Ops<f32> for Avx512Ops {
         unsafe { finish(acc, albedo, out) }
     }
     fn prefetch<S: FloatElement>(&self, row: &[S]) {
-        let bytes = core::mem::size_of_val(row);
-        let p = row.as_ptr() as *const i8;
-        let mut off = 0;
-        while off < bytes {
-            // SAFETY: prefetching never faults; the address is inside `row`.
-            unsafe { _mm_prefetch::<_MM_HINT_T0>(p.add(off)) };
-            off += 64;
-        }
+        super::prefetch_row(row)
     }
 }

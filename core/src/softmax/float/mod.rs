@@ -74,6 +74,20 @@ pub(crate) trait Ops<A: Real> {
     fn prefetch<S: FloatElement>(&self, _row: &[S]) {}
 }
 
+/// Prefetches every cache line of `row` into L1 (the SIMD [`Ops`]' hint).
+#[cfg(target_arch = "x86_64")]
+pub(crate) fn prefetch_row<S: FloatElement>(row: &[S]) {
+    use core::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+    let bytes = core::mem::size_of_val(row);
+    let p = row.as_ptr() as *const i8;
+    let mut off = 0;
+    while off < bytes {
+        // SAFETY: prefetching never faults; the address is inside `row`.
+        unsafe { _mm_prefetch::<_MM_HINT_T0>(p.add(off)) };
+        off += 64;
+    }
+}
+
 /// Scratch words of the box-sum path.
 pub(crate) fn boxsum_scratch_len(sizes: &[usize], channels: usize, width: usize) -> usize {
     let rmax = sizes.iter().copied().max().unwrap_or(1) / 2;
