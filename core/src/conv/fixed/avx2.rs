@@ -8,7 +8,7 @@
 
 use core::arch::x86_64::*;
 
-use super::{finish, pack_pairs, row_taps, scalar, shift, Tap};
+use super::{pack_pairs, row_taps, scalar_columns, shift, Block, Tap};
 use crate::conv::{Activation, Conv2d};
 use crate::fixed::{ld, KERNEL_FRAC, QMAX};
 use crate::view::{View, ViewMut};
@@ -75,30 +75,9 @@ pub(crate) unsafe fn forward(
                     _ => run!(6),
                 }
             }
-            for co in co0..co0 + ob {
-                for xx in (0..p.min(w)).chain(x.max(p.min(w))..w) {
-                    let acc = scalar::pixel(layer, src, co, y, xx);
-                    dst.row_mut(co, yo)[xx] = finish(layer, co, acc, s);
-                }
-            }
+            scalar_columns(layer, src, dst, (co0, ob), (y, yo), x, s);
             co0 += ob;
         }
-    }
-}
-
-struct Block<'c, 'a> {
-    src: &'c View<'a, i16>,
-    taps: &'c [Tap],
-    packed: &'c [i32],
-    npairs: usize,
-    x: usize,
-    s: i32,
-    p: usize,
-}
-
-impl Clone for Block<'_, '_> {
-    fn clone(&self) -> Self {
-        Block { ..*self }
     }
 }
 

@@ -9,7 +9,7 @@
 
 use core::arch::x86_64::*;
 
-use super::{finish, pack_pairs, row_taps, scalar, shift, Tap};
+use super::{pack_pairs, row_taps, scalar_columns, shift, Block, Tap};
 use crate::conv::{Activation, Conv2d};
 use crate::fixed::{ld, KERNEL_FRAC, QMAX};
 use crate::view::{View, ViewMut};
@@ -65,13 +65,13 @@ pub(crate) unsafe fn forward(
                         };
                         while x + 32 + p <= w {
                             // Columns x - p .. x + 32 + p are inside the row.
-                            go(&Block { x, ..ctx.clone() }, dst);
+                            go(&Block { x, ..ctx }, dst);
                             x += 32;
                         }
                         // The tail: one more block ending at the last interior column,
                         // overlapping the previous one (same values written twice).
                         if x < w - p && w >= 32 + 2 * p {
-                            go(&Block { x: w - p - 32, ..ctx.clone() }, dst);
+                            go(&Block { x: w - p - 32, ..ctx }, dst);
                             x = w - p;
                         }
                     }};
@@ -86,30 +86,9 @@ pub(crate) unsafe fn forward(
                     _ => run!(7),
                 }
             }
-            for co in co0..co0 + ob {
-                for xx in (0..p.min(w)).chain(x.max(p.min(w))..w) {
-                    let acc = scalar::pixel(layer, src, co, y, xx);
-                    dst.row_mut(co, yo)[xx] = finish(layer, co, acc, s);
-                }
-            }
+            scalar_columns(layer, src, dst, (co0, ob), (y, yo), x, s);
             co0 += ob;
         }
-    }
-}
-
-struct Block<'c, 'a> {
-    src: &'c View<'a, i16>,
-    taps: &'c [Tap],
-    packed: &'c [i32],
-    npairs: usize,
-    x: usize,
-    s: i32,
-    p: usize,
-}
-
-impl Clone for Block<'_, '_> {
-    fn clone(&self) -> Self {
-        Block { ..*self }
     }
 }
 

@@ -92,6 +92,43 @@ pub(crate) fn pack_pairs(layer: &Conv2d<'_, i16>, nt: usize, ky_lo: usize, ky_hi
     }
 }
 
+/// What a SIMD block kernel reads: the input, the row's valid taps and
+/// their packed weight pairs, the block's first column, the shift, `k / 2`.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+pub(crate) struct Block<'c, 'a> {
+    pub(crate) src: &'c View<'a, i16>,
+    pub(crate) taps: &'c [Tap],
+    pub(crate) packed: &'c [i32],
+    pub(crate) npairs: usize,
+    pub(crate) x: usize,
+    pub(crate) s: i32,
+    pub(crate) p: usize,
+}
+
+/// The scalar pixel for output channels `co0 .. co0 + ob` of row `y` (band
+/// row `yo`) at the `p` left border columns and from column `from` on: what
+/// the SIMD blocks of a row leave.
+#[cfg(target_arch = "x86_64")]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn scalar_columns(
+    layer: &Conv2d<'_, i16>,
+    src: &View<'_, i16>,
+    dst: &mut ViewMut<'_, i16>,
+    (co0, ob): (usize, usize),
+    (y, yo): (usize, usize),
+    from: usize,
+    s: i32,
+) {
+    let (w, p) = (src.width(), layer.k / 2);
+    for co in co0..co0 + ob {
+        for xx in (0..p.min(w)).chain(from.max(p.min(w))..w) {
+            let acc = scalar::pixel(layer, src, co, y, xx);
+            dst.row_mut(co, yo)[xx] = finish(layer, co, acc, s);
+        }
+    }
+}
+
 /// Bound of pre-activation values (2^17 - 1).
 pub(crate) const PRE_ACT_MAX: i64 = (1 << 17) - 1;
 
