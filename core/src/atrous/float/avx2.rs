@@ -7,7 +7,7 @@
 use core::arch::x86_64::*;
 
 use super::scalar::{self, MAX_OUT};
-use super::{h2, Ctx, Geometry};
+use super::{h2, rows, Ctx, Geometry, RowPtrs};
 use crate::math::avx2::exp;
 use crate::precision::FloatElement;
 use crate::simd::avx2::{load8, store8};
@@ -83,28 +83,6 @@ pub(crate) unsafe fn step<S: FloatElement>(c: &Ctx<'_, '_, S>, dst: &mut ViewMut
             scalar_px(x, dst);
             x += 1;
         }
-    }
-}
-
-/// Pointers to one row of every plane a tap reads.
-struct RowPtrs<S> {
-    src: [*const S; MAX_OUT],
-    noise: *const S,
-    normal: [*const S; 3],
-    position: [*const S; 3],
-    depth: *const S,
-}
-
-fn rows<S: FloatElement>(c: &Ctx<'_, '_, S>, yy: usize) -> RowPtrs<S> {
-    let null = core::ptr::null::<S>();
-    let g = c.guides;
-    let nsrc = 3 * c.groups + usize::from(c.with_variance);
-    RowPtrs {
-        src: core::array::from_fn(|ch| if ch < nsrc { c.src.ptr(ch, yy) } else { null }),
-        noise: g.noise.ptr(0, yy),
-        normal: core::array::from_fn(|k| g.normal.as_ref().map_or(null, |v| v.ptr(k, yy))),
-        position: core::array::from_fn(|k| g.position.as_ref().map_or(null, |v| v.ptr(k, yy))),
-        depth: g.depth.as_ref().map_or(null, |v| v.ptr(0, yy)),
     }
 }
 

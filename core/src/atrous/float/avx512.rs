@@ -10,7 +10,7 @@
 
 use core::arch::x86_64::*;
 
-use super::{h2, Ctx, Geometry};
+use super::{h2, rows, Ctx, Geometry, RowPtrs};
 use crate::math::{EXP_C, EXP_HI, EXP_LO, LN2_HI, LN2_LO, LOG2E, ROUND_MAGIC};
 use crate::precision::FloatElement;
 use crate::simd::avx512::{first_lanes, load16, load16_mask, store16_mask};
@@ -50,28 +50,6 @@ pub(crate) unsafe fn step<S: FloatElement>(c: &Ctx<'_, '_, S>, dst: &mut ViewMut
         (2, true, Geometry::Depth) => go!(2, true, 2),
         (2, true, Geometry::None) => go!(2, true, 3),
         _ => {} // groups is checked to be 1 or 2: unreachable
-    }
-}
-
-/// Pointers to one row of every plane a tap reads.
-struct RowPtrs<S> {
-    src: [*const S; 7],
-    noise: *const S,
-    normal: [*const S; 3],
-    position: [*const S; 3],
-    depth: *const S,
-}
-
-fn rows<S: FloatElement>(c: &Ctx<'_, '_, S>, yy: usize) -> RowPtrs<S> {
-    let null = core::ptr::null::<S>();
-    let g = c.guides;
-    let nsrc = 3 * c.groups + usize::from(c.with_variance);
-    RowPtrs {
-        src: core::array::from_fn(|ch| if ch < nsrc { c.src.ptr(ch, yy) } else { null }),
-        noise: g.noise.ptr(0, yy),
-        normal: core::array::from_fn(|k| g.normal.as_ref().map_or(null, |v| v.ptr(k, yy))),
-        position: core::array::from_fn(|k| g.position.as_ref().map_or(null, |v| v.ptr(k, yy))),
-        depth: g.depth.as_ref().map_or(null, |v| v.ptr(0, yy)),
     }
 }
 

@@ -103,3 +103,27 @@ pub(crate) fn step<S: FloatElement, A: crate::real::Real>(
         _ => scalar::step::<S, A>(&ctx, dst, y0),
     }
 }
+
+/// Pointers to one row of every plane a tap reads (the SIMD steps).
+#[cfg(target_arch = "x86_64")]
+pub(crate) struct RowPtrs<S> {
+    pub(crate) src: [*const S; scalar::MAX_OUT],
+    pub(crate) noise: *const S,
+    pub(crate) normal: [*const S; 3],
+    pub(crate) position: [*const S; 3],
+    pub(crate) depth: *const S,
+}
+
+#[cfg(target_arch = "x86_64")]
+pub(crate) fn rows<S: FloatElement>(c: &Ctx<'_, '_, S>, yy: usize) -> RowPtrs<S> {
+    let null = core::ptr::null::<S>();
+    let g = c.guides;
+    let nsrc = 3 * c.groups + usize::from(c.with_variance);
+    RowPtrs {
+        src: core::array::from_fn(|ch| if ch < nsrc { c.src.ptr(ch, yy) } else { null }),
+        noise: g.noise.ptr(0, yy),
+        normal: core::array::from_fn(|k| g.normal.as_ref().map_or(null, |v| v.ptr(k, yy))),
+        position: core::array::from_fn(|k| g.position.as_ref().map_or(null, |v| v.ptr(k, yy))),
+        depth: g.depth.as_ref().map_or(null, |v| v.ptr(0, yy)),
+    }
+}
