@@ -11,6 +11,7 @@ use std::path::{Path, PathBuf};
 use exr::prelude::traits::*;
 use mcdenoise_core::View;
 
+use crate::aligned::Aligned;
 use crate::error::{HostError, Result};
 
 /// Finite values are clamped to `±VALUE_LIMIT` on load (and ±inf becomes it).
@@ -128,7 +129,8 @@ pub struct Frame {
     pub width: usize,
     /// Rows.
     pub height: usize,
-    planes: [Option<Vec<f32>>; 7],
+    /// Each buffer starts on a cache line (see [`Aligned`]).
+    planes: [Option<Aligned<f32>>; 7],
     /// Non-finite values replaced on load.
     pub replaced_nonfinite: usize,
 }
@@ -140,17 +142,18 @@ impl Frame {
         if color.len() != 3 * width * height {
             return Err(HostError::bad(&path, "colour needs 3 planes of width x height"));
         }
-        let mut planes: [Option<Vec<f32>>; 7] = Default::default();
-        planes[0] = Some(color);
+        let mut planes: [Option<Aligned<f32>>; 7] = Default::default();
+        planes[0] = Some(Aligned::from_slice(&color));
         Ok(Frame { path, width, height, planes, replaced_nonfinite: 0 })
     }
 
-    /// Adds or replaces a buffer (planar, `buffer.channels()` planes).
+    /// Adds or replaces a buffer (planar, `buffer.channels()` planes; kept
+    /// as a copy that starts on a cache line).
     pub fn set(&mut self, b: Buffer, data: Vec<f32>) -> Result<()> {
         if data.len() != b.channels() * self.width * self.height {
             return Err(HostError::bad(&self.path, format!("{} needs {} planes", b.name(), b.channels())));
         }
-        self.planes[b.index()] = Some(data);
+        self.planes[b.index()] = Some(Aligned::from_slice(&data));
         Ok(())
     }
 
@@ -219,12 +222,12 @@ impl Frame {
         let layer = &image.layer_data;
         let (width, height) = (layer.size.0, layer.size.1);
         let names: Vec<String> = layer.channel_data.list.iter().map(|c| c.name.to_string()).collect();
-        let mut planes: [Option<Vec<f32>>; 7] = Default::default();
+        let mut planes: [Option<Aligned<f32>>; 7] = Default::default();
         let mut replaced = 0;
         for b in Buffer::ALL {
             let Some(set) = find_set(path, b, &names)? else { continue };
-            let mut data = Vec::with_capacity(b.channels() * width * height);
-            for name in set {
+            let mut data = Aligned::<f32>::zeroed(b.channels() * width * height);
+            for (name, dst) in set.iter().zip(data.chunks_mut(width * height)) {
                 let ch = layer.channel_data.list.iter().find(|c| c.name == **name).expect("found above");
                 if ch.sample_data.len() != width * height {
                     return Err(HostError::bad(
@@ -232,11 +235,10 @@ impl Frame {
                         format!("channel {name} is subsampled; only full-resolution channels are supported"),
                     ));
                 }
-                data.extend(ch.sample_data.values_as_f32().map(|v| {
-                    let s = sanitize(v);
-                    replaced += usize::from(s.to_bits() != v.to_bits() && !v.is_finite());
-                    s
-                }));
+                for (d, v) in dst.iter_mut().zip(ch.sample_data.values_as_f32()) {
+                    *d = sanitize(v);
+                    replaced += usize::from(d.to_bits() != v.to_bits() && !v.is_finite());
+                }
             }
             planes[b.index()] = Some(data);
         }

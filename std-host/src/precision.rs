@@ -14,6 +14,7 @@ use mcdenoise_core::tonemap::TonemapPrecision;
 use mcdenoise_core::unfold::UnfoldPrecision;
 use mcdenoise_core::{F16Arith, Fixed, Precision, View, ViewMut, F16, F32};
 
+use crate::aligned::Aligned;
 use crate::error::{HostError, Result};
 
 /// The precisions a pipeline can run in, by command-line name.
@@ -166,27 +167,27 @@ impl HostPrecision for Fixed {
 
 /// An owned planar image in a storage type.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Planes<T> {
+pub struct Planes<T: bytemuck::Pod> {
     /// Planes.
     pub channels: usize,
     /// Width.
     pub width: usize,
     /// Height.
     pub height: usize,
-    /// Plane-major, row-major values.
-    pub data: Vec<T>,
+    /// Plane-major, row-major values, starting on a cache line.
+    pub data: Aligned<T>,
     /// Fixed-point fractional bits (0 for floats).
     pub frac: i8,
 }
 
-impl<T: Copy + Default> Planes<T> {
+impl<T: bytemuck::Pod + Default> Planes<T> {
     /// Zero-filled.
     pub fn new(channels: usize, width: usize, height: usize) -> Self {
-        Planes { channels, width, height, data: vec![T::default(); channels * width * height], frac: 0 }
+        Planes { channels, width, height, data: Aligned::zeroed(channels * width * height), frac: 0 }
     }
-    /// From f32 data already in hand (frac 0).
+    /// A copy of data already in hand (frac 0).
     pub fn from_vec(channels: usize, width: usize, height: usize, data: Vec<T>) -> Self {
-        Planes { channels, width, height, data, frac: 0 }
+        Planes { channels, width, height, data: Aligned::from_slice(&data), frac: 0 }
     }
     /// The same planes with a fixed-point format.
     pub fn with_frac(mut self, frac: i8) -> Self {
@@ -207,7 +208,7 @@ impl<T: Copy + Default> Planes<T> {
     }
 }
 
-impl<T: Copy + Default> Planes<T> {
+impl<T: bytemuck::Pod + Default> Planes<T> {
     /// Encodes f32 planes of radiance-like values.
     pub fn encode<P: HostPrecision<Store = T>>(channels: usize, width: usize, height: usize, src: &[f32]) -> Self {
         Self::encode_as::<P>(channels, width, height, src, Kind::Image)

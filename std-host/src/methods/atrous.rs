@@ -33,6 +33,7 @@ use mcdenoise_core::tonemap;
 use mcdenoise_core::{View, ViewMut};
 
 use super::{scene_scale, Ctx, Denoiser, Plan, Timings};
+use crate::aligned::Aligned;
 use crate::error::{HostError, Result};
 use crate::frame::{Buffer, Frame};
 use crate::precision::{HostPrecision, Kind, Planes};
@@ -179,12 +180,12 @@ fn as_f16<T: 'static>(d: &[T]) -> Option<&[half::f16]> {
 }
 
 /// f32 data in the pipeline's storage: borrowed when that is f32, else encoded.
-enum Held<'a, T> {
+enum Held<'a, T: bytemuck::Pod> {
     Borrowed(&'a [T]),
     Owned(Planes<T>),
 }
 
-impl<'a, T: Copy + Default + 'static> Held<'a, T> {
+impl<'a, T: bytemuck::Pod + Default> Held<'a, T> {
     fn new<P: HostPrecision<Store = T>>(d: &'a [f32], ch: usize, w: usize, h: usize, kind: Kind) -> Self {
         match as_store::<T>(d) {
             Some(s) => Held::Borrowed(s),
@@ -206,42 +207,42 @@ impl<'a, T: Copy + Default + 'static> Held<'a, T> {
     fn data(&self) -> &[T] {
         match self {
             Held::Borrowed(s) => s,
-            Held::Owned(p) => &p.data,
+            Held::Owned(p) => &p.data[..],
         }
     }
 }
 
 /// Buffers kept across the frames of a sequence (no allocation and no page
 /// faults per frame once warm).
-struct Bufs<T> {
+struct Bufs<T: bytemuck::Pod> {
     n: usize,
     /// Level-0 images in f32: `[M]`, `[M, H]` or `[A, variance]`.
-    c0: Vec<f32>,
+    c0: Aligned<f32>,
     /// Raw and smoothed noise variance.
-    noise_raw: Vec<f32>,
-    noise: Vec<f32>,
-    zeros: Vec<f32>,
+    noise_raw: Aligned<f32>,
+    noise: Aligned<f32>,
+    zeros: Aligned<f32>,
     /// Level outputs, alternating.
     ping: Planes<T>,
     pong: Planes<T>,
     /// Sum of the shrunk details (SURE).
-    recon: Vec<f32>,
-    out: Vec<f32>,
+    recon: Aligned<f32>,
+    out: Aligned<f32>,
 }
 
-impl<T: Copy + Default> Bufs<T> {
+impl<T: bytemuck::Pod + Default> Bufs<T> {
     fn new(w: usize, h: usize, nsrc: usize, nout: usize) -> Self {
         let n = w * h;
         Bufs {
             n,
-            c0: vec![0.0; nsrc * n],
-            noise_raw: vec![0.0; n],
-            noise: vec![0.0; n],
-            zeros: vec![0.0; n],
+            c0: Aligned::zeroed(nsrc * n),
+            noise_raw: Aligned::zeroed(n),
+            noise: Aligned::zeroed(n),
+            zeros: Aligned::zeroed(n),
             ping: Planes::new(nout, w, h),
             pong: Planes::new(nout, w, h),
-            recon: vec![0.0; 3 * n],
-            out: vec![0.0; 3 * n],
+            recon: Aligned::zeroed(3 * n),
+            out: Aligned::zeroed(3 * n),
         }
     }
 }
@@ -477,7 +478,7 @@ impl<P: HostPrecision> Atrous<P> {
                 None => P::decode(&last.data[..3 * n], &mut out, last.frac),
             }
             if self.sure {
-                for (o, r) in out.iter_mut().zip(&bf.recon) {
+                for (o, r) in out.iter_mut().zip(bf.recon.iter()) {
                     *o += *r;
                 }
             }
