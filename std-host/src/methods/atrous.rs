@@ -272,25 +272,40 @@ fn prepare(
         let (img, nz) = runs.split_at_mut(imgs);
         let nz = &mut *nz[0];
         let len = nz.len();
-        let demod = |src: &[f32], c: usize, i: usize| {
-            let v = src[c * n + s + i];
-            match albedo {
-                Some(al) => v / (al[c * n + s + i] + ALBEDO_EPS),
-                None => v,
-            }
-        };
+        // This run of channel `c` of a frame buffer.
+        fn seg(src: &[f32], c: usize, n: usize, s: usize, len: usize) -> &[f32] {
+            &src[c * n + s..c * n + s + len]
+        }
+        // Slices of one length, and the albedo test hoisted out of the
+        // loops, so that they vectorise.
         match b {
             Some(b) => {
                 nz.fill(0.0);
+                let (mean, half) = img.split_at_mut(3);
                 for c in 0..3 {
-                    for i in 0..len {
-                        let (ai, bi) = (demod(a, c, i), demod(b, c, i));
-                        img[c][i] = 0.5 * (ai + bi);
-                        if half_diff {
-                            img[3 + c][i] = 0.5 * (ai - bi);
+                    let (ac, bc, m) = (seg(a, c, n, s, len), seg(b, c, n, s, len), &mut *mean[c]);
+                    let mut h = half.get_mut(c).map(|v| &mut **v);
+                    let mut one = |i: usize, ai: f32, bi: f32| {
+                        m[i] = 0.5 * (ai + bi);
+                        if let Some(h) = h.as_deref_mut() {
+                            h[i] = 0.5 * (ai - bi);
                         }
                         let d = ai - bi;
                         nz[i] += d * d;
+                    };
+                    match albedo {
+                        Some(al) => {
+                            let alc = seg(al, c, n, s, len);
+                            for i in 0..len {
+                                let q = alc[i] + ALBEDO_EPS;
+                                one(i, ac[i] / q, bc[i] / q);
+                            }
+                        }
+                        None => {
+                            for i in 0..len {
+                                one(i, ac[i], bc[i]);
+                            }
+                        }
                     }
                 }
                 for v in nz.iter_mut() {
@@ -299,8 +314,14 @@ fn prepare(
             }
             None => {
                 for (c, im) in img.iter_mut().enumerate() {
-                    for (i, o) in im.iter_mut().enumerate() {
-                        *o = demod(a, c, i);
+                    let ac = seg(a, c, n, s, len);
+                    match albedo {
+                        Some(al) => {
+                            for ((o, &v), &q) in im.iter_mut().zip(ac).zip(seg(al, c, n, s, len)) {
+                                *o = v / (q + ALBEDO_EPS);
+                            }
+                        }
+                        None => im.copy_from_slice(ac),
                     }
                 }
             }
@@ -469,32 +490,43 @@ impl<P: HostPrecision> Atrous<P> {
             debug_assert_eq!(dst.channels, nout);
             std::mem::swap(&mut src, &mut dst);
         }
-        // c_N of the first image (the last output, now in src), plus the kept detail.
+        // c_N of the first image (the last output, now in src), plus the kept
+        // detail, then remodulated: one parallel pass when the level output
+        // is f32 and nothing is added, else summed into `bf.out` first.
         let last = src;
-        let mut out = t.time("reconstruct", || {
-            let mut out = vec![0.0f32; 3 * n];
-            match as_f32(&last.data[..3 * n]) {
-                Some(c) => out.copy_from_slice(c),
-                None => P::decode(&last.data[..3 * n], &mut out, last.frac),
+        let mut out = vec![0.0f32; 3 * n];
+        let direct = as_f32(&last.data[..3 * n]).filter(|_| !self.sure && albedo.is_some());
+        let base: &[f32] = match direct {
+            Some(c) => c,
+            None => {
+                t.time("reconstruct", || {
+                    let sum = if albedo.is_some() { &mut bf.out[..] } else { &mut out[..] };
+                    match as_f32(&last.data[..3 * n]) {
+                        Some(c) => sum.copy_from_slice(c),
+                        None => P::decode(&last.data[..3 * n], sum, last.frac),
+                    }
+                    if self.sure {
+                        for (o, r) in sum.iter_mut().zip(bf.recon.iter()) {
+                            *o += *r;
+                        }
+                    }
+                });
+                &bf.out
             }
-            if self.sure {
-                for (o, r) in out.iter_mut().zip(bf.recon.iter()) {
-                    *o += *r;
-                }
-            }
-            out
-        });
+        };
         if let Some(al) = albedo {
             t.time("remodulate", || -> Result<()> {
-                bf.out.copy_from_slice(&out);
-                tonemap::remodulate::<mcdenoise_core::F32>(
-                    ctx.isa,
-                    &View::new(&bf.out, 3, w, h)?,
-                    &View::new(al, 3, w, h)?,
-                    ALBEDO_EPS,
-                    &mut ViewMut::new(&mut out, 3, w, h)?,
-                )?;
-                Ok(())
+                let (sv, av) = (View::new(base, 3, w, h)?, View::new(al, 3, w, h)?);
+                bands(ctx, ViewMut::new(&mut out, 3, w, h)?, 1, 0, |band, y0, _| {
+                    let rows = band.height();
+                    tonemap::remodulate::<mcdenoise_core::F32>(
+                        isa,
+                        &sv.rows(y0, rows)?,
+                        &av.rows(y0, rows)?,
+                        ALBEDO_EPS,
+                        band,
+                    )
+                })
             })?;
         }
         // The output passes through the pipeline's storage precision.
