@@ -282,8 +282,8 @@ fn prepare(
             Some(b) => {
                 nz.fill(0.0);
                 let (mean, half) = img.split_at_mut(3);
-                for c in 0..3 {
-                    let (ac, bc, m) = (seg(a, c, n, s, len), seg(b, c, n, s, len), &mut *mean[c]);
+                for (c, m) in mean.iter_mut().enumerate() {
+                    let (ac, bc) = (seg(a, c, n, s, len), seg(b, c, n, s, len));
                     let mut h = half.get_mut(c).map(|v| &mut **v);
                     let mut one = |i: usize, ai: f32, bi: f32| {
                         m[i] = 0.5 * (ai + bi);
