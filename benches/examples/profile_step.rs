@@ -1,7 +1,7 @@
 //! One à-trous step at 1280x720 on 64-byte aligned planes, the fastest of
 //! REPS: `ISA=avx512 G=2 profile_step LEVEL REPS` (`G` colour groups, 1 or 2;
-//! `W`, `H` resize). Under valgrind (`--tool=callgrind`) use `ISA=avx2`:
-//! valgrind has no AVX-512.
+//! `W`, `H` resize; `NOGEO=1` drops the normal and position guides). Under
+//! valgrind (`--tool=callgrind`) use `ISA=avx2`: valgrind has no AVX-512.
 use mcdenoise_benches::values;
 use mcdenoise_core::atrous::{self, AtrousGuides, AtrousParams};
 use mcdenoise_core::{Isa, View, ViewMut, F32};
@@ -24,8 +24,8 @@ fn main() {
     let (src, noise, normal, position) = (al(&src), al(&noise), al(&normal), al(&position));
     let guides = AtrousGuides {
         noise: View::new(&noise, 1, W, H).unwrap(),
-        normal: Some(View::new(&normal, 3, W, H).unwrap()),
-        position: Some(View::new(&position, 3, W, H).unwrap()),
+        normal: (dim("NOGEO", 0) == 0).then(|| View::new(&normal, 3, W, H).unwrap()),
+        position: (dim("NOGEO", 0) == 0).then(|| View::new(&position, 3, W, H).unwrap()),
         depth: None,
     };
     let sv = View::new(&src, 3 * groups, W, H).unwrap();
