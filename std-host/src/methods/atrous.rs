@@ -276,8 +276,9 @@ fn prepare(
         fn seg(src: &[f32], c: usize, n: usize, s: usize, len: usize) -> &[f32] {
             &src[c * n + s..c * n + s + len]
         }
-        // Slices of one length, and the albedo test hoisted out of the
-        // loops, so that they vectorise.
+        // Slices of one length and the albedo test hoisted out of the loops,
+        // so that the compiler may vectorise them (not checked in the
+        // assembly; the stage is near memory bandwidth either way).
         match b {
             Some(b) => {
                 nz.fill(0.0);
