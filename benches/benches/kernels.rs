@@ -329,11 +329,12 @@ fn bench_atrous_step(c: &mut Criterion) {
     let sv = View::new(&src, 3, W, H).unwrap();
     for isa in isas() {
         for level in [0u32, 4] {
+            let mut scratch = vec![0.0f32; atrous::step_scratch_len::<F32>(level)];
             g.bench_function(BenchmarkId::new(format!("level{level}"), isa.name()), |b| {
                 b.iter(|| {
                     let mut dv = ViewMut::new(&mut out, 3, W, H).unwrap();
-                    atrous::step::<F32>(isa, level, 1, false, &AtrousParams::default(), &guides, &sv, &mut dv, 0)
-                        .unwrap()
+                    let p = AtrousParams::default();
+                    atrous::step::<F32>(isa, level, 1, false, &p, &guides, &sv, &mut dv, 0, &mut scratch).unwrap()
                 })
             });
         }

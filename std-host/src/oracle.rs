@@ -289,16 +289,21 @@ pub fn atrous_step(
                     }
                     match (g.normal, g.position, g.depth) {
                         (Some(nm), Some(pos), _) => {
-                            let pd: f64 = (0..3).map(|c| nm[c * n + p] * (pos[c * n + q] - pos[c * n + p])).sum();
-                            t += pd * pd / (sigma_plane * sigma_plane);
+                            // The mean of the two pixels' squared tangent-plane distances.
+                            let along = |i: usize| -> f64 {
+                                (0..3).map(|c| nm[c * n + i] * (pos[c * n + q] - pos[c * n + p])).sum()
+                            };
+                            let (pd, qd) = (along(p), along(q));
+                            t += 0.5 * (pd * pd + qd * qd) / (sigma_plane * sigma_plane);
                         }
                         (None, Some(pos), _) => {
                             let d2: f64 = (0..3).map(|c| (pos[c * n + q] - pos[c * n + p]).powi(2)).sum();
                             t += d2 / (sigma_plane * hole as f64).powi(2);
                         }
                         (_, None, Some(z)) => {
-                            let r = (z[q] - z[p]) / z[p].max(1e-20);
-                            t += r * r / (sigma_depth * hole as f64).powi(2);
+                            // Squared depth difference relative to both depths.
+                            let r2 = (z[q] - z[p]).powi(2) / (z[p].max(1e-20) * z[q].max(1e-20));
+                            t += r2 / (sigma_depth * hole as f64).powi(2);
                         }
                         _ => {}
                     }

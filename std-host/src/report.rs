@@ -449,8 +449,8 @@ fn measure<P: HostPrecision>(
                 let params = AtrousParams { sigma_plane: 0.05, ..AtrousParams::default() };
                 let rv = rad.view();
                 let t = Instant::now();
-                pool.bands(dst, 1, scratch, 0, |b, y0, _| {
-                    atrous::step::<P>(isa, 1, 1, false, &params, &g, &rv, b, y0)
+                pool.bands(dst, 1, scratch, atrous::step_scratch_len::<P>(1), |b, y0, s| {
+                    atrous::step::<P>(isa, 1, 1, false, &params, &g, &rv, b, y0, s)
                 })?;
                 Ok(t.elapsed())
             }

@@ -55,7 +55,10 @@ fn run_step(
     let guides = AtrousGuides { noise: noise.view(), normal: nv, position: pv, depth: dv };
     let nout = 3 * groups + 2 * usize::from(var);
     let mut out = Img::filled(nout, w, h, f32::NAN);
-    atrous::step::<F32>(isa, level, groups, var, &params, &guides, &src.view(), &mut out.view_mut(), 0).unwrap();
+    // Garbage scratch: a weight read before it is written shows up as NaN.
+    let mut scratch = vec![f32::NAN; atrous::step_scratch_len::<F32>(level)];
+    let (sv, mut ov) = (src.view(), out.view_mut());
+    atrous::step::<F32>(isa, level, groups, var, &params, &guides, &sv, &mut ov, 0, &mut scratch).unwrap();
     let (n64, p64, d64) = (normal.to_f64(), position.to_f64(), depth.to_f64());
     let og = oracle::AtrousGuides {
         noise: &noise.to_f64(),
@@ -139,7 +142,8 @@ fn atrous_f16_simd_matches_scalar_at_every_width() {
                     let mut out = vec![f16::from_f32(fill); nout * w * h];
                     let sv = View::new(&src, nc, w, h).unwrap();
                     let mut dv = ViewMut::new(&mut out, nout, w, h).unwrap();
-                    atrous::step::<F16>(isa, level, groups, var, &params, &guides, &sv, &mut dv, 0).unwrap();
+                    let mut s = vec![f32::NAN; atrous::step_scratch_len::<F16>(level)];
+                    atrous::step::<F16>(isa, level, groups, var, &params, &guides, &sv, &mut dv, 0, &mut s).unwrap();
                     out.iter().map(|v| v.to_f32()).collect::<Vec<f32>>()
                 };
                 // Different sentinels: a lane left unwritten shows up.

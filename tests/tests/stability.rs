@@ -250,8 +250,9 @@ fn matrix<P: HostPrecision>() {
                 let depth = store::<P>(&Img::filled(1, w, h, 2.0), Kind::Plain);
                 let g = AtrousGuides { noise: noise.view(), normal: None, position: None, depth: Some(depth.view()) };
                 let mut o = outp(3, w, h);
-                atrous::step::<P>(isa, 1, 1, false, &AtrousParams::default(), &g, &rs.view(), &mut o.view_mut(), 0)
-                    .unwrap();
+                let mut s = vec![f32::NAN; atrous::step_scratch_len::<P>(1)];
+                let p = AtrousParams::default();
+                atrous::step::<P>(isa, 1, 1, false, &p, &g, &rs.view(), &mut o.view_mut(), 0, &mut s).unwrap();
                 assert_finite(&tag("atrous"), &o.decode::<P>());
             }
         }

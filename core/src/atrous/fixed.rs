@@ -96,10 +96,12 @@ pub(crate) fn step(
                         let gd = if geo_plane {
                             let n = g.normal.as_ref().expect("normal");
                             let fnm = n.frac() as i32;
+                            // Both pixels' tangent-plane distances, Q.(fn + fx) -> 16
+                            // fractional bits before squaring; their squares averaged.
                             let pd: i128 = (0..3).map(|c| at(n, c, y, x) as i128 * d[c]).sum();
-                            // Q.(fn + fx) -> keep 16 fractional bits before squaring.
-                            let pd16 = sh(pd, fnm + fx - 16);
-                            sh(pd16 * pd16, 16)
+                            let qd: i128 = (0..3).map(|c| at(n, c, qy, qx) as i128 * d[c]).sum();
+                            let (pd16, qd16) = (sh(pd, fnm + fx - 16), sh(qd, fnm + fx - 16));
+                            sh(pd16 * pd16 + qd16 * qd16, 17)
                         } else {
                             let d16: [i128; 3] = core::array::from_fn(|c| sh(d[c], fx - 16));
                             sh(d16.iter().map(|v| v * v).sum::<i128>(), 16)
@@ -107,10 +109,11 @@ pub(crate) fn step(
                         t8 += sh(gd * inv_geo, 24);
                     } else if geo_depth {
                         let dz = g.depth.as_ref().expect("depth");
+                        // (zq - zp)^2 / (zp zq) in Q.16 (depths clamped to one unit).
                         let zp = (at(dz, 0, y, x) as i128).max(1);
-                        let zq = at(dz, 0, qy, qx) as i128;
-                        let r16 = ((zq - zp) << 16) / zp;
-                        t8 += sh(sh(r16 * r16, 16) * inv_geo, 24);
+                        let zq = (at(dz, 0, qy, qx) as i128).max(1);
+                        let r2 = ((zq - zp).pow(2) << 16) / (zp * zq);
+                        t8 += sh(r2 * inv_geo, 24);
                     }
                     let t8 = t8.clamp(0, 1 << 28) as i32;
                     let h2 = (B3[dy] * B3[dx] * 65536.0) as i64; // exact: multiples of 1/256

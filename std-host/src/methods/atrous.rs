@@ -479,8 +479,8 @@ impl<P: HostPrecision> Atrous<P> {
             let cv = if level == 0 { c0.view(nsrc, w, h) } else { src.view().channels_range(0, nsrc)? };
             let dv = dst.view_mut();
             t.time("a-trous levels", || {
-                bands(ctx, dv, 1, 0, |band, y0, _| {
-                    atrous::step::<P>(isa, level, groups, sure_single, &params, &guides, &cv, band, y0)
+                bands(ctx, dv, 1, atrous::step_scratch_len::<P>(level), |band, y0, s| {
+                    atrous::step::<P>(isa, level, groups, sure_single, &params, &guides, &cv, band, y0, s)
                 })
             })?;
             if self.sure {

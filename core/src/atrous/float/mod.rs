@@ -9,8 +9,6 @@ pub(crate) mod scalar;
 
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod avx2;
-#[cfg(target_arch = "x86_64")]
-pub(crate) mod avx512;
 
 /// How geometry stops edges.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -80,6 +78,20 @@ pub(crate) fn h2(dy: usize, dx: usize) -> f32 {
     B3[dy] * B3[dx]
 }
 
+/// Scratch floats [`step`] needs (the pair kernel's weight rings; the
+/// scalar pixel needs none, but callers size it once for any ISA).
+pub(crate) fn scratch_len(level: u32) -> usize {
+    #[cfg(target_arch = "x86_64")]
+    {
+        avx2::scratch_len(level)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = level;
+        0
+    }
+}
+
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn step<S: FloatElement, A: crate::real::Real>(
     isa: Isa,
@@ -91,21 +103,26 @@ pub(crate) fn step<S: FloatElement, A: crate::real::Real>(
     src: &View<'_, S>,
     dst: &mut ViewMut<'_, S>,
     y0: usize,
+    scratch: &mut [f32],
 ) {
     let ctx = Ctx::new(level, groups, with_variance, params, guides, src);
     match isa {
+        // AVX-512 runs the AVX2 pair kernel: it does half the weight work of
+        // the 16-lane per-tap kernel it replaced.
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: the caller checked support.
-        Isa::Avx2 if A::IS_F32 => unsafe { avx2::step(&ctx, dst, y0) },
-        #[cfg(target_arch = "x86_64")]
-        // SAFETY: the caller checked support.
-        Isa::Avx512 if A::IS_F32 => unsafe { avx512::step(&ctx, dst, y0) },
-        _ => scalar::step::<S, A>(&ctx, dst, y0),
+        // SAFETY: the caller checked support (AVX-512 implies AVX2/FMA/F16C
+        // in `Isa`) and the scratch length.
+        Isa::Avx2 | Isa::Avx512 if A::IS_F32 => unsafe { avx2::step(&ctx, dst, y0, scratch) },
+        _ => {
+            let _ = scratch;
+            scalar::step::<S, A>(&ctx, dst, y0)
+        }
     }
 }
 
 /// Pointers to one row of every plane a tap reads (the SIMD steps).
 #[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
 pub(crate) struct RowPtrs<S> {
     pub(crate) src: [*const S; scalar::MAX_OUT],
     pub(crate) noise: *const S,
@@ -115,6 +132,7 @@ pub(crate) struct RowPtrs<S> {
 }
 
 #[cfg(target_arch = "x86_64")]
+#[inline]
 pub(crate) fn rows<S: FloatElement>(c: &Ctx<'_, '_, S>, yy: usize) -> RowPtrs<S> {
     let null = core::ptr::null::<S>();
     let g = c.guides;

@@ -32,7 +32,7 @@ pub(crate) fn pixel<S: FloatElement, A: Real>(c: &Ctx<'_, '_, S>, y: usize, x: u
     let np = c.guides.normal.as_ref().map(|n| v3::<S, A>(n, y, x)).unwrap_or([A::ZERO; 3]);
     let xp = c.guides.position.as_ref().map(|p| v3::<S, A>(p, y, x)).unwrap_or([A::ZERO; 3]);
     let zp: A = c.guides.depth.as_ref().map(|d| at(d, 0, y, x)).unwrap_or(A::ZERO);
-    let inv_zp = A::ONE / if zp > A::of(1e-20) { zp } else { A::of(1e-20) };
+    let zp_safe = if zp > A::of(1e-20) { zp } else { A::of(1e-20) };
     let (scale, eps) = (A::of(c.color_scale), A::of(c.eps));
     let (inv_n2, inv_geo) = (A::of(c.inv_normal2), A::of(c.inv_geom2));
     let mut wsum = A::ZERO;
@@ -65,8 +65,10 @@ pub(crate) fn pixel<S: FloatElement, A: Real>(c: &Ctx<'_, '_, S>, y: usize, x: u
                     let xq = v3::<S, A>(c.guides.position.as_ref().expect("position"), qy, qx);
                     let d = [xq[0] - xp[0], xq[1] - xp[1], xq[2] - xp[2]];
                     let g = if c.geometry == Geometry::Plane {
+                        let nq = v3::<S, A>(c.guides.normal.as_ref().expect("normal"), qy, qx);
                         let pd = np[0] * d[0] + np[1] * d[1] + np[2] * d[2];
-                        pd * pd
+                        let qd = nq[0] * d[0] + nq[1] * d[1] + nq[2] * d[2];
+                        (pd * pd + qd * qd) * A::of(0.5)
                     } else {
                         d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
                     };
@@ -74,8 +76,9 @@ pub(crate) fn pixel<S: FloatElement, A: Real>(c: &Ctx<'_, '_, S>, y: usize, x: u
                 }
                 Geometry::Depth => {
                     let zq: A = at(c.guides.depth.as_ref().expect("depth"), 0, qy, qx);
-                    let r = (zq - zp) * inv_zp;
-                    t += r * r * inv_geo;
+                    let zq_safe = if zq > A::of(1e-20) { zq } else { A::of(1e-20) };
+                    let dz = zq - zp;
+                    t += dz * dz / (zp_safe * zq_safe) * inv_geo;
                 }
                 Geometry::None => {}
             }
