@@ -281,7 +281,7 @@ pub fn atrous_step(
                     }
                     let q = (qy * w as i64 + qx) as usize;
                     let dc: f64 = (0..3).map(|c| (guide(c, p) - guide(c, q)).powi(2)).sum();
-                    let v = g.noise[p].min(g.noise[q]);
+                    let v = g.noise[p].min(g.noise[q]).max(0.0);
                     let mut t = dc / (phi / hole as f64 * v + eps);
                     if let Some(nm) = g.normal {
                         let dn: f64 = (0..3).map(|c| (nm[c * n + p] - nm[c * n + q]).powi(2)).sum();

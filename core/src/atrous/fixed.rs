@@ -74,8 +74,8 @@ pub(crate) fn step(
                     let Some(qx) = (x + dx * hole).checked_sub(2 * hole).filter(|&v| v < w) else { continue };
                     // Colour: |g_p - g_q|^2 (Q.2fs) over scale * min(v) + eps (real), as Q.8.
                     let dc: i128 = (0..3).map(|c| (gp[c] - guide(qy, qx, c)).pow(2)).sum();
-                    let v = vp.min(at(&g.noise, 0, qy, qx)) as i128;
-                    // Denominator in Q.(2fs + 16): scale (Q.16) * v (Q.fv) -> shift to Q.(2fs+16).
+                    let v = vp.min(at(&g.noise, 0, qy, qx)).max(0) as i128; // negative variance counts as 0
+                                                                            // Denominator in Q.(2fs + 16): scale (Q.16) * v (Q.fv) -> shift to Q.(2fs+16).
                     let den = sh(scale_q * v, fv - 2 * fs) + sh(eps_q, -2 * fs);
                     let mut t8: i128 = if den > 0 {
                         (dc << 24) / den

@@ -8,7 +8,8 @@
 //! `h = (1/16, 1/4, 3/8, 1/4, 1/16)` (B3 spline), out-of-image taps left out:
 //! - `t_colour = |g(p) - g(q)|^2 / (phi_color 2^-i min(v(p), v(q)) + eps)`:
 //!   `g` is the colour guide (the first of the images filtered together), `v`
-//!   the input's per-pixel noise variance, so colour stops edges relative to
+//!   the input's per-pixel noise variance (a negative one counts as 0), so
+//!   colour stops edges relative to
 //!   the local noise and the threshold shrinks by half each level. The
 //!   smaller of the two variances is used so that a very noisy pixel (a
 //!   partially covered light edge) does not open the gate to clean neighbours

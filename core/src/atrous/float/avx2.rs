@@ -24,29 +24,76 @@
 
 use core::arch::x86_64::*;
 
-use super::{rows, Ctx, Geometry, RowPtrs};
-use crate::math::{EXP_HI, EXP_LO, LOG2E};
+use super::{rows, Ctx, Geometry};
+use crate::math::LOG2E;
 use crate::precision::FloatElement;
 use crate::simd::avx2::{lane_range, load8, load8_range, store8_first};
 use crate::view::ViewMut;
 
-/// Output columns per strip (a multiple of 8).
-const STRIP: usize = 256;
+/// Floats between the sub-rows (planes) of a packed guide row: a
+/// compile-time constant, so every load of the weight kernel is one base
+/// register plus a constant plus the column, and 2400 bytes apart the ten
+/// sub-rows of a row start in different L1 sets whatever the caller's plane
+/// layout (planes of 1280x720 f32 are 900 pages each: read in place, the
+/// ten guide streams of a row would all share one set).
+const PK: usize = 600;
+
+/// Guide planes in a packed row: colour 0..3, noise, normal 0..3, then
+/// position 0..3 (or depth in the first of those).
+const NPLANES: usize = 10;
+
+/// Output columns per strip (a multiple of 8): 256, fewer at the coarsest
+/// levels so the strip and its `2 hole` halo each side fit a packed sub-row.
+fn strip(hole: usize) -> usize {
+    256.min((PK - 8 - 4 * hole) / 8 * 8)
+}
 
 /// The forward offsets `(ox, oy)` in units of the hole.
 const FORWARD: [(isize, usize); 12] =
     [(1, 0), (2, 0), (-2, 1), (-1, 1), (0, 1), (1, 1), (2, 1), (-2, 2), (-1, 2), (0, 2), (1, 2), (2, 2)];
 
-/// The B3 tap weight of offset `(ox, oy)`.
-fn h_of(ox: isize, oy: usize) -> f32 {
+/// The B3 tap weights of the forward offsets.
+const H_FORWARD: [f32; 12] = {
     let b3 = super::super::B3;
-    b3[(ox + 2) as usize] * b3[oy + 2]
-}
+    let mut t = [0.0f32; 12];
+    let mut k = 0;
+    while k < 12 {
+        t[k] = b3[(FORWARD[k].0 + 2) as usize] * b3[FORWARD[k].1 + 2];
+        k += 1;
+    }
+    t
+};
 
-/// Floats per ring row: the strip, its `2 hole` halo each side, rounded up
-/// to whole chunks, plus one chunk that unstored lanes may read.
+/// `log2` of [`H_FORWARD`] (exact: every tap weight is a power of two
+/// times 1, 3 or 9, and these are computed in f64).
+const LOG2_H_FORWARD: [f32; 12] = {
+    // log2 of 1/256, 1/64, 3/128, 1/16, 3/32, 9/64 (and 3/8 unused here).
+    let mut t = [0.0f32; 12];
+    let mut k = 0;
+    while k < 12 {
+        let h = H_FORWARD[k];
+        t[k] = if h == 1.0 / 256.0 {
+            -8.0
+        } else if h == 1.0 / 64.0 {
+            -6.0
+        } else if h == 3.0 / 128.0 {
+            -5.415_037_5
+        } else if h == 1.0 / 16.0 {
+            -4.0
+        } else if h == 3.0 / 32.0 {
+            -3.415_037_5
+        } else {
+            -2.830_075 // 9/64
+        };
+        k += 1;
+    }
+    t
+};
+
+/// Floats per weight-ring row: the strip and its `2 hole` halo each side,
+/// rounded up to whole chunks, plus one chunk that unstored lanes may read.
 fn ring_row(hole: usize) -> usize {
-    (STRIP + 4 * hole).div_ceil(8) * 8 + 8
+    (strip(hole) + 4 * hole).div_ceil(8) * 8 + 8
 }
 
 /// Rows the ring of offset row `oy` keeps: `oy hole + 1`.
@@ -54,11 +101,19 @@ fn depth(oy: usize, hole: usize) -> usize {
     oy * hole + 1
 }
 
-/// Scratch floats the pair step needs at `level` (any width).
+/// Floats of the weight rings.
+fn rings_len(hole: usize) -> usize {
+    FORWARD.iter().map(|&(_, oy)| depth(oy, hole)).sum::<usize>() * ring_row(hole)
+}
+
+/// Scratch floats the pair step needs at `level` (any width): the weight
+/// rings, `2 hole + 1` packed guide rows (level 4: about 1.1 MB in all), and
+/// `2 hole + 8` floats of slack. Halo chunks whose weights are never read
+/// load their `q` up to `2 hole` floats before a packed sub-row (inside the
+/// rings) or past it (the next sub-row, or the slack after the last).
 pub(crate) fn scratch_len(level: u32) -> usize {
     let hole = 1usize << level;
-    let rows: usize = FORWARD.iter().map(|&(_, oy)| depth(oy, hole)).sum();
-    rows * ring_row(hole)
+    rings_len(hole) + (2 * hole + 1) * NPLANES * PK + 2 * hole + 8
 }
 
 /// # Safety
@@ -101,63 +156,80 @@ pub(crate) unsafe fn step<S: FloatElement>(
 
 /// `2^f` on `[-1/2, 1/2]`: Taylor terms of `e^(f ln 2)` to degree 6
 /// (relative error below 2e-7), Estrin's scheme.
-const EXP2_C: [f32; 7] = [
-    1.0,
-    core::f32::consts::LN_2,
-    0.240_226_5,
-    0.055_504_11,
-    0.009_618_129,
-    0.001_333_355_8,
-    0.000_154_035_3,
-];
+const EXP2_C: [f32; 7] =
+    [1.0, core::f32::consts::LN_2, 0.240_226_5, 0.055_504_11, 0.009_618_129, 0.001_333_355_8, 0.000_154_035_3];
 
-/// `e^-t` per lane for `N` vectors side by side: `2^y` with `y = -t log2(e)`
-/// split into `round(y)` (the exponent) and a polynomial of the rest; 0
-/// where `t > 87` or NaN (as [`crate::math::exp`] at `-t`). Its chain is
-/// about 24 cycles against the 30 of the two-constant reduction; `y` is
-/// rounded once, a relative error of `|y| 2^-24` (3.6e-7 at `t = 4`, and
-/// only weights below 1e-30 see more than 4e-6).
-#[inline]
-#[target_feature(enable = "avx2,fma,f16c")]
-unsafe fn exp_neg<const N: usize>(t: [__m256; N]) -> [__m256; N] {
-    // SAFETY (the whole body): AVX2 and FMA are enabled in every caller.
+/// `h e^-t = 2^y`, `y = log2(h) - t log2(e)`, per lane for `N` vectors:
+/// `round(y)` goes into the exponent bits of a degree-6 polynomial of the
+/// rest. `t >= 0` or NaN here (the packed guides make every term a square or
+/// a non-negative product); lanes with `y < -125` (`h e^-t` below 2^-125,
+/// `t` beyond about 82) or NaN give 0. `y` is rounded once: a relative error
+/// of `|y| 2^-24` (below 5e-7 for `t <= 4`).
+#[inline(always)]
+unsafe fn exp_neg<const N: usize>(t: [__m256; N], log2h: [__m256; N]) -> [__m256; N] {
+    // SAFETY (the whole body): inlined into AVX2/FMA code only.
     unsafe {
-        let valid: [__m256; N] =
-            core::array::from_fn(|i| _mm256_cmp_ps::<_CMP_LE_OQ>(t[i], _mm256_set1_ps(-EXP_LO)));
-        // t >= 0 for any noise >= 0; the clamps keep the exponent in range
-        // for anything else (beyond 87 the lane is masked to 0 anyway).
-        let y: [__m256; N] = core::array::from_fn(|i| {
-            let t = _mm256_max_ps(_mm256_min_ps(t[i], _mm256_set1_ps(-EXP_LO)), _mm256_set1_ps(-EXP_HI));
-            _mm256_mul_ps(t, _mm256_set1_ps(-LOG2E))
-        });
-        let n: [__m256; N] =
-            core::array::from_fn(|i| _mm256_round_ps::<{ _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC }>(y[i]));
-        let f: [__m256; N] = core::array::from_fn(|i| _mm256_sub_ps(y[i], n[i]));
-        let c = |i: usize| _mm256_set1_ps(EXP2_C[i]);
-        let f2: [__m256; N] = core::array::from_fn(|i| _mm256_mul_ps(f[i], f[i]));
-        let p01: [__m256; N] = core::array::from_fn(|i| _mm256_fmadd_ps(f[i], c(1), c(0)));
-        let p23: [__m256; N] = core::array::from_fn(|i| _mm256_fmadd_ps(f[i], c(3), c(2)));
-        let p45: [__m256; N] = core::array::from_fn(|i| _mm256_fmadd_ps(f[i], c(5), c(4)));
-        let p46: [__m256; N] = core::array::from_fn(|i| _mm256_fmadd_ps(f2[i], c(6), p45[i]));
-        let f4: [__m256; N] = core::array::from_fn(|i| _mm256_mul_ps(f2[i], f2[i]));
-        let p03: [__m256; N] = core::array::from_fn(|i| _mm256_fmadd_ps(f2[i], p23[i], p01[i]));
-        core::array::from_fn(|i| {
-            let p = _mm256_fmadd_ps(f4[i], p46[i], p03[i]);
-            let bits = _mm256_slli_epi32::<23>(_mm256_add_epi32(_mm256_cvtps_epi32(n[i]), _mm256_set1_epi32(127)));
-            _mm256_and_ps(_mm256_mul_ps(p, _mm256_castsi256_ps(bits)), valid[i])
-        })
+        let c = [
+            _mm256_set1_ps(EXP2_C[0]),
+            _mm256_set1_ps(EXP2_C[1]),
+            _mm256_set1_ps(EXP2_C[2]),
+            _mm256_set1_ps(EXP2_C[3]),
+            _mm256_set1_ps(EXP2_C[4]),
+            _mm256_set1_ps(EXP2_C[5]),
+            _mm256_set1_ps(EXP2_C[6]),
+        ];
+        let mut out = t;
+        for i in 0..N {
+            let y = _mm256_fmadd_ps(t[i], _mm256_set1_ps(-LOG2E), log2h[i]);
+            let valid = _mm256_cmp_ps::<_CMP_GE_OQ>(y, _mm256_set1_ps(-125.0));
+            let n = _mm256_round_ps::<{ _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC }>(y);
+            let f = _mm256_sub_ps(y, n);
+            let f2 = _mm256_mul_ps(f, f);
+            let p01 = _mm256_fmadd_ps(f, c[1], c[0]);
+            let p23 = _mm256_fmadd_ps(f, c[3], c[2]);
+            let p45 = _mm256_fmadd_ps(f, c[5], c[4]);
+            let p46 = _mm256_fmadd_ps(f2, c[6], p45);
+            let f4 = _mm256_mul_ps(f2, f2);
+            let p03 = _mm256_fmadd_ps(f2, p23, p01);
+            let p = _mm256_fmadd_ps(f4, p46, p03);
+            // p in [2^-1/2, 2^1/2]: adding n to its exponent field is p 2^n
+            // for n >= -125.
+            let e = _mm256_add_epi32(_mm256_castps_si256(p), _mm256_slli_epi32::<23>(_mm256_cvtps_epi32(n)));
+            out[i] = _mm256_and_ps(_mm256_castsi256_ps(e), valid);
+        }
+        out
     }
 }
 
-/// Prefetches columns `x0 .. x1` of row `yy` of every plane a tap reads into L2.
+/// Prefetches columns `x0 .. x1` of row `yy` of the colour planes (the
+/// accumulation reads them in place) into L2.
 #[inline]
 #[target_feature(enable = "avx2,fma,f16c")]
-fn prefetch_strip<S: FloatElement>(c: &Ctx<'_, '_, S>, yy: usize, x0: usize, x1: usize) {
+fn prefetch_colour<S: FloatElement>(c: &Ctx<'_, '_, S>, nin: usize, yy: usize, x0: usize, x1: usize) {
+    let sz = core::mem::size_of::<S>();
+    for ch in 0..nin {
+        let p = c.src.ptr(ch, yy);
+        let (a, b) = ((p as *const i8).wrapping_add(x0 * sz), (p as *const i8).wrapping_add(x1 * sz));
+        let mut q = a;
+        while q < b {
+            _mm_prefetch::<_MM_HINT_T1>(q);
+            q = q.wrapping_add(64);
+        }
+        _mm_prefetch::<_MM_HINT_T1>(b.wrapping_sub(1));
+    }
+}
+
+/// Prefetches columns `x0 .. x1` of row `yy` of every guide plane into L2.
+#[inline]
+#[target_feature(enable = "avx2,fma,f16c")]
+fn prefetch_guides<S: FloatElement>(c: &Ctx<'_, '_, S>, yy: usize, x0: usize, x1: usize) {
     let r = rows(c, yy);
     let sz = core::mem::size_of::<S>();
-    let one = |p: *const S| {
+    let planes = [r.src[0], r.src[1], r.src[2], r.noise, r.normal[0], r.normal[1], r.normal[2]];
+    let geo = [r.position[0], r.position[1], r.position[2], r.depth];
+    for p in planes.into_iter().chain(geo) {
         if p.is_null() {
-            return;
+            continue;
         }
         let (a, b) = ((p as *const i8).wrapping_add(x0 * sz), (p as *const i8).wrapping_add(x1 * sz));
         let mut q = a;
@@ -165,17 +237,11 @@ fn prefetch_strip<S: FloatElement>(c: &Ctx<'_, '_, S>, yy: usize, x0: usize, x1:
             _mm_prefetch::<_MM_HINT_T1>(q);
             q = q.wrapping_add(64);
         }
-        // The last line when the range ends past a line start.
         _mm_prefetch::<_MM_HINT_T1>(b.wrapping_sub(1));
-    };
-    for p in r.src.iter().chain(r.normal.iter()).chain(r.position.iter()) {
-        one(*p);
     }
-    one(r.noise);
-    one(r.depth);
 }
 
-/// The rings of the forward offsets inside the scratch.
+/// The weight rings of the forward offsets inside the scratch.
 struct Rings {
     base: *mut f32,
     /// Start of each offset's ring, in floats.
@@ -185,7 +251,7 @@ struct Rings {
 }
 
 impl Rings {
-    fn new(scratch: &mut [f32], hole: usize) -> Self {
+    fn new(base: *mut f32, hole: usize) -> Self {
         let row = ring_row(hole);
         let mut start = [0; 12];
         let mut at = 0;
@@ -193,14 +259,26 @@ impl Rings {
             start[k] = at;
             at += depth(oy, hole) * row;
         }
-        debug_assert!(at <= scratch.len());
-        Rings { base: scratch.as_mut_ptr(), start, row, hole }
+        Rings { base, start, row, hole }
     }
 
     /// Row `y` of offset `k`'s ring (ring index 0 is column `xs - 2 hole`).
     fn at(&self, k: usize, y: usize) -> *mut f32 {
         let d = depth(FORWARD[k].1, self.hole);
         self.base.wrapping_add(self.start[k] + (y % d) * self.row)
+    }
+}
+
+/// The packed guide rows: `2 hole + 1` slots of `NPLANES` sub-rows of `PK`
+/// floats; slot element `i` of a sub-row is column `xs - 2 hole + i`.
+struct Packed {
+    base: *mut f32,
+    slots: usize,
+}
+
+impl Packed {
+    fn row(&self, y: usize) -> *mut f32 {
+        self.base.wrapping_add((y % self.slots) * NPLANES * PK)
     }
 }
 
@@ -216,30 +294,42 @@ unsafe fn strips<S: FloatElement, const G: usize, const VAR: bool, const GEO: u8
     let (w, h) = (c.src.width(), c.src.height());
     let hole = c.hole;
     let m = 2 * hole;
-    let rings = Rings::new(scratch, hole);
+    let rings = Rings::new(scratch.as_mut_ptr(), hole);
+    let packed = Packed { base: scratch.as_mut_ptr().wrapping_add(rings_len(hole)), slots: 2 * hole + 1 };
+    let nin = 3 * G + usize::from(VAR);
     let y1 = y0 + dst.height();
+    let sw = strip(hole);
     let mut xs = 0;
     while xs < w {
-        let xe = (xs + STRIP).min(w);
-        // Rows above the band whose weights reach into it.
-        for r in y0.saturating_sub(m)..y0 {
-            for (k, &(ox, oy)) in FORWARD.iter().enumerate() {
-                if oy > 0 && r + oy * hole >= y0 && r + oy * hole < h {
-                    // SAFETY: forwarded; the ring row is inside the scratch.
-                    unsafe { weights::<S, GEO>(c, &rings, k, ox, oy, r, xs, xe) };
+        let xe = (xs + sw).min(w);
+        // Guide rows are packed once each, as they first come into reach
+        // (as the lowest q row, 2 hole below the row being weighed).
+        let first = y0.saturating_sub(m);
+        let mut next_pack = first;
+        let mut pack_upto = |r: usize| {
+            while next_pack <= (r + m).min(h - 1) {
+                // SAFETY: the slot lies inside the scratch.
+                unsafe { pack_row::<S, GEO>(c, packed.row(next_pack), next_pack, xs, xe) };
+                next_pack += 1;
+                // The row packed next, into L2 while this one is weighed.
+                if next_pack < h {
+                    prefetch_guides(c, next_pack, xs.saturating_sub(m), (xe + m).min(w));
                 }
             }
+        };
+        // Rows above the band whose weights reach into it.
+        for r in first..y0 {
+            pack_upto(r);
+            // SAFETY: forwarded; the ring rows are inside the scratch.
+            unsafe { weights_row::<GEO>(c, &rings, &packed, r, xs, xe) };
         }
         for y in y0..y1 {
             if let Some(qy) = Some(y + 1 + m).filter(|&v| v < h) {
-                prefetch_strip(c, qy, xs.saturating_sub(m), (xe + m).min(w));
+                prefetch_colour(c, nin, qy, xs.saturating_sub(m), (xe + m).min(w));
             }
-            for (k, &(ox, oy)) in FORWARD.iter().enumerate() {
-                if y + oy * hole < h {
-                    // SAFETY: as above.
-                    unsafe { weights::<S, GEO>(c, &rings, k, ox, oy, y, xs, xe) };
-                }
-            }
+            pack_upto(y);
+            // SAFETY: as above.
+            unsafe { weights_row::<GEO>(c, &rings, &packed, y, xs, xe) };
             // SAFETY: as above.
             unsafe {
                 if G == 1 && !VAR {
@@ -262,182 +352,308 @@ fn inside(x: isize, w: isize) -> (usize, usize) {
     (lo, hi.max(lo))
 }
 
-/// `W_k` of row `y` over the columns strip `xs .. xe` reads, into its ring.
+/// Packs the guides of image row `y` over columns `xs - 2 hole .. xe + 2
+/// hole` into `out` as f32, zero outside the image. Planes a geometry does
+/// not use are left alone (never read).
 ///
 /// # Safety
-/// As [`step`]; row `y + oy hole` is inside the image.
-#[allow(clippy::too_many_arguments)]
+/// As [`step`]; `out` holds `NPLANES * PK` floats.
 #[inline]
 #[target_feature(enable = "avx2,fma,f16c")]
-unsafe fn weights<S: FloatElement, const GEO: u8>(
-    c: &Ctx<'_, '_, S>,
+unsafe fn pack_row<S: FloatElement, const GEO: u8>(c: &Ctx<'_, '_, S>, out: *mut f32, y: usize, xs: usize, xe: usize) {
+    let w = c.src.width();
+    let m = 2 * c.hole;
+    let r = rows(c, y);
+    let pos = if GEO == 2 { [r.depth, core::ptr::null(), core::ptr::null()] } else { r.position };
+    let planes: [*const S; NPLANES] =
+        [r.src[0], r.src[1], r.src[2], r.noise, r.normal[0], r.normal[1], r.normal[2], pos[0], pos[1], pos[2]];
+    // Image columns a .. b land at packed index a - (xs - 2 hole).
+    let lo = xs.saturating_sub(m);
+    let hi = (xe + m).min(w);
+    let off = lo + m - xs; // packed index of column lo
+                           // (The noise sub-row is zero outside the image too: those lanes weigh 0.)
+    let len = (xe + m - xs + m).div_ceil(8) * 8; // packed indices touched by the chunks
+                                                 // What the sub-rows hold, so the weight kernel multiplies by no
+                                                 // constant: colour as is; the noise as the colour gate's reciprocal
+                                                 // `1 / (scale v + eps)` (>= 0; `max` of two of them is the reciprocal of
+                                                 // the scalar's `min`); normals over sigma_normal; positions times
+                                                 // sigma_normal sqrt(1 / (2 sigma_plane^2)) for the plane term (so
+                                                 // `(n'(p) . d')^2 = (n(p) . d)^2 / (2 sigma_plane^2)`), times
+                                                 // sqrt(1 / sigma^2) for the position term; depth as is.
+    let has_n = !r.normal[0].is_null();
+    let sn = if has_n { c.inv_normal2.sqrt() } else { 0.0 };
+    let sx = match GEO {
+        0 => (0.5 * c.inv_geom2).sqrt() / sn,
+        1 => c.inv_geom2.sqrt(),
+        _ => 1.0,
+    };
+    let scale = [1.0, 1.0, 1.0, 0.0, sn, sn, sn, sx, sx, sx];
+    let (cs, eps) = (_mm256_set1_ps(c.color_scale), _mm256_set1_ps(c.eps));
+    let one = _mm256_set1_ps(1.0);
+    for (k, &p) in planes.iter().enumerate() {
+        if p.is_null() {
+            continue;
+        }
+        let sk = _mm256_set1_ps(scale[k]);
+        let tr = |v: __m256| -> __m256 {
+            match k {
+                0..=2 => v,
+                3 => _mm256_max_ps(_mm256_div_ps(one, _mm256_fmadd_ps(cs, v, eps)), _mm256_setzero_ps()),
+                7 if GEO == 2 => v,
+                _ => _mm256_mul_ps(v, sk),
+            }
+        };
+        let o = out.wrapping_add(k * PK);
+        // SAFETY (the loops): packed indices stay below len <= PK - 8; image
+        // columns lo .. hi are inside the row.
+        unsafe {
+            // Zero where the strip's halo leaves the image (first and last
+            // strips); the last store may run past `off` into what the copy
+            // writes next (off <= 2 hole, far inside the sub-row).
+            let zero = _mm256_setzero_ps();
+            let mut i = 0;
+            while i < off {
+                _mm256_storeu_ps(o.add(i), zero);
+                i += 8;
+            }
+            let n = hi - lo;
+            let mut j = 0;
+            while j + 8 <= n {
+                _mm256_storeu_ps(o.add(off + j), tr(load8(p.add(lo + j))));
+                j += 8;
+            }
+            if j < n {
+                let v = tr(load8_range(p.add(lo + j), 0, n - j));
+                _mm256_storeu_ps(o.add(off + j), _mm256_and_ps(v, _mm256_castsi256_ps(lane_range(0, n - j))));
+            }
+            // Exactly up to len + 8: past it lies the next sub-row (or slot).
+            let mut i = off + n;
+            while i + 8 <= len + 8 {
+                _mm256_storeu_ps(o.add(i), zero);
+                i += 8;
+            }
+            while i < len + 8 {
+                *o.add(i) = 0.0;
+                i += 1;
+            }
+        }
+    }
+}
+
+/// The weights of all twelve forward offsets for image row `y` over the
+/// columns strip `xs .. xe` reads, into the rings, from the packed rows `y`,
+/// `y + hole`, `y + 2 hole` (an offset whose `q` row is past the image gets
+/// a weight that is never read: its ring slot held a row no longer needed).
+///
+/// # Safety
+/// As [`step`]; the packed rows are current.
+#[inline]
+#[target_feature(enable = "avx2,fma,f16c")]
+unsafe fn weights_row<const GEO: u8>(
+    c: &Ctx<'_, '_, impl FloatElement>,
     rings: &Rings,
-    k: usize,
-    ox: isize,
-    oy: usize,
+    packed: &Packed,
     y: usize,
     xs: usize,
     xe: usize,
 ) {
-    let w = c.src.width() as isize;
-    let hole = c.hole as isize;
-    let s = ox * hole;
-    let base = xs as isize - 2 * hole; // column of ring index 0
-    // Columns read: forward at xs .. xe, backward at xs - s .. xe - s.
-    let (c0, c1) = ((xs as isize).min(xs as isize - s), (xe as isize).max(xe as isize - s));
-    let (i0, i1) = (((c0 - base) / 8 * 8) as usize, (c1 - base) as usize);
-    let out = rings.at(k, y);
-    let pr = rows(c, y);
-    let qr = rows(c, y + oy * hole as usize);
-    let hw = _mm256_set1_ps(h_of(ox, oy));
-    // Chunks whose p and q lanes all lie inside: x >= 0, x + s >= 0,
-    // x + 8 <= w, x + s + 8 <= w.
-    let (xa, xb) = (0isize.max(-s), w.min(w - s) - 8);
-    let mut i = i0;
-    while i < i1 {
+    let (w, h) = (c.src.width() as isize, c.src.height());
+    let hole = c.hole;
+    let m = 2 * hole as isize;
+    let base = xs as isize - m; // column of ring / packed index 0
+    let qrow = |oy: usize| packed.row(if y + oy * hole < h { y + oy * hole } else { y }) as *const f32;
+    let rows = [qrow(0), qrow(1), qrow(2)];
+    let out: [*mut f32; 12] = core::array::from_fn(|k| rings.at(k, y));
+    let n = (xe as isize + m - base) as usize; // packed indices the rings need
+    let mut i = 0;
+    while i < n {
         let x = base + i as isize;
-        // SAFETY: the ring row holds ring_row(hole) >= i1 rounded up to 8 floats.
-        let o = out.wrapping_add(i);
-        if x >= xa && x + 8 * (STAGE as isize - 1) <= xb && i + 8 * STAGE <= i1.next_multiple_of(8) {
-            // SAFETY: all STAGE chunks lie inside (just checked).
-            unsafe {
-                let e = pair::<S, GEO, false, STAGE>(c, &pr, &qr, x, s, 0, 8);
-                for (k, v) in e.iter().enumerate() {
-                    _mm256_storeu_ps(o.add(8 * k), _mm256_mul_ps(hw, *v));
-                }
-            }
-            i += 8 * STAGE;
-            continue;
-        }
-        let (lo, hi) = {
-            let (a, b) = inside(x, w);
-            let (qa, qb) = inside(x + s, w);
-            (a.max(qa), b.min(qb).max(a.max(qa)))
-        };
-        // SAFETY: the lanes lo .. hi of p and q are inside.
+        // SAFETY: packed and ring indices i .. i + 8 (+/- 2 hole for q) lie
+        // inside their rows.
         unsafe {
-            if lo == 0 && hi == 8 {
-                _mm256_storeu_ps(o, _mm256_mul_ps(hw, pair::<S, GEO, false, 1>(c, &pr, &qr, x, s, 0, 8)[0]));
-            } else if lo < hi {
-                let wt = _mm256_mul_ps(hw, pair::<S, GEO, true, 1>(c, &pr, &qr, x, s, lo, hi)[0]);
-                _mm256_storeu_ps(o, _mm256_and_ps(wt, _mm256_castsi256_ps(lane_range(lo, hi))));
+            if x >= m && x + 8 + m <= w {
+                chunk::<GEO, false>(c, &rows, &out, i, x);
             } else {
-                _mm256_storeu_ps(o, _mm256_setzero_ps());
+                chunk::<GEO, true>(c, &rows, &out, i, x);
             }
         }
         i += 8;
     }
 }
 
-/// Interior chunks computed side by side (see [`pair`]).
-const STAGE: usize = 3;
-
-/// `e^-t(p, q)` for `N` chunks of eight pixels side by side: `p` at
-/// columns `x + 8 k ..` of row `pr`, `q` at `x + 8 k + s ..` of row `qr`
-/// (lanes `lo .. hi` only under `EDGE`, where `N` is 1). Each stage runs over
-/// the `N` chunks before the next, so the FP scheduler sees `N` independent
-/// chains; the colour quotient runs beside the geometry terms and joins them
-/// at the end.
+/// The twelve weights of the chunk at packed index `i` (column `x`). Pass 1
+/// (colour terms, `p`'s colour and noise in registers) and pass 2 (geometry
+/// and weight, `p`'s normal and position) run over groups of offsets stage
+/// by stage, so the FP scheduler holds several independent chains. Under
+/// `EDGE`, lanes whose `p` or `q` lies outside the image get weight 0.
 ///
 /// # Safety
-/// AVX2/FMA/F16C; lanes `lo .. hi` of every chunk of both rows are inside
-/// the image (all eight without `EDGE`).
-#[allow(clippy::too_many_arguments)]
-#[inline]
-#[target_feature(enable = "avx2,fma,f16c")]
-unsafe fn pair<S: FloatElement, const GEO: u8, const EDGE: bool, const N: usize>(
-    c: &Ctx<'_, '_, S>,
-    pr: &RowPtrs<S>,
-    qr: &RowPtrs<S>,
+/// As [`weights_row`].
+#[inline(always)]
+unsafe fn chunk<const GEO: u8, const EDGE: bool>(
+    c: &Ctx<'_, '_, impl FloatElement>,
+    rows: &[*const f32; 3],
+    out: &[*mut f32; 12],
+    i: usize,
     x: isize,
-    s: isize,
-    lo: usize,
-    hi: usize,
-) -> [__m256; N] {
-    // SAFETY (every load): in-range rows; the lanes read are inside (caller).
-    let ld = |p: *const S, xx: isize| unsafe {
-        if EDGE {
-            load8_range(p.wrapping_offset(xx), lo, hi)
-        } else {
-            load8(p.offset(xx))
-        }
-    };
-    let xs: [isize; N] = core::array::from_fn(|k| x + 8 * k as isize);
-    let lp = |p: *const S| -> [__m256; N] { core::array::from_fn(|k| ld(p, xs[k])) };
-    let lq = |p: *const S| -> [__m256; N] { core::array::from_fn(|k| ld(p, xs[k] + s)) };
-    // SAFETY (the body): AVX2 and FMA are enabled in every caller.
+) {
+    // SAFETY (the body): inlined into AVX2/FMA code only; loads and stores
+    // inside the packed rows and the rings (caller).
     unsafe {
         let zero = _mm256_setzero_ps();
-        let mut dc = [zero; N];
-        for ch in 0..3 {
-            let (a, b) = (lp(pr.src[ch]), lq(qr.src[ch]));
-            for k in 0..N {
-                let d = _mm256_sub_ps(a[k], b[k]);
-                dc[k] = _mm256_fmadd_ps(d, d, dc[k]);
+        let mut tc = [zero; 12];
+        for k0 in [0, 4, 8] {
+            let t = colour_terms::<4>(c, rows, i, k0);
+            tc[k0..k0 + 4].copy_from_slice(&t);
+        }
+        for k0 in [0, 3, 6, 9] {
+            let e = geometry_weights::<GEO, 3>(c, rows, &tc, i, k0);
+            for (j, e) in e.iter().enumerate() {
+                let k = k0 + j;
+                let mut wt = *e;
+                if EDGE {
+                    let w = c.src.width() as isize;
+                    let (a, b) = inside(x, w);
+                    let (qa, qb) = inside(x + FORWARD[k].0 * c.hole as isize, w);
+                    let lo = a.max(qa);
+                    wt = _mm256_and_ps(wt, _mm256_castsi256_ps(lane_range(lo, b.min(qb).max(lo))));
+                }
+                _mm256_storeu_ps(out[k].add(i), wt);
             }
         }
-        let (vp, vq) = (lp(pr.noise), lq(qr.noise));
-        // min as the scalar `if vq < vp { vq } else { vp }`.
-        let tc: [__m256; N] = core::array::from_fn(|k| {
-            let den = _mm256_fmadd_ps(_mm256_set1_ps(c.color_scale), _mm256_min_ps(vq[k], vp[k]), _mm256_set1_ps(c.eps));
-            _mm256_div_ps(dc[k], den)
-        });
-        // The other terms, beside the division.
-        let mut tg = [zero; N];
-        let has_n = !pr.normal[0].is_null();
-        let mut np = [[zero; N]; 3];
+    }
+}
+
+/// Eight floats of sub-row `plane` of a packed row at index `i`.
+///
+/// # Safety
+/// Inside the packed row.
+#[inline(always)]
+unsafe fn lp(row: *const f32, plane: usize, i: isize) -> __m256 {
+    // SAFETY: caller; AVX is enabled in every caller.
+    unsafe { _mm256_loadu_ps(row.offset(i + (plane * PK) as isize)) }
+}
+
+/// Colour terms `|g(p) - g(q)|^2 / (scale min(v(p), v(q)) + eps)` of offsets
+/// `k0 .. k0 + N`.
+#[inline(always)]
+unsafe fn colour_terms<const N: usize>(
+    c: &Ctx<'_, '_, impl FloatElement>,
+    rows: &[*const f32; 3],
+    i: usize,
+    k0: usize,
+) -> [__m256; N] {
+    let hole = c.hole as isize;
+    let ip = i as isize;
+    let p = rows[0];
+    let mut q = [(p, 0isize); N];
+    for (j, q) in q.iter_mut().enumerate() {
+        let (ox, oy) = FORWARD[k0 + j];
+        *q = (rows[oy], ip + ox * hole);
+    }
+    // SAFETY (the body): inlined into AVX2/FMA code only; loads inside the
+    // packed rows (caller).
+    unsafe {
+        let mut dc = [_mm256_setzero_ps(); N];
+        for ch in 0..3 {
+            let gp = lp(p, ch, ip);
+            for j in 0..N {
+                let d = _mm256_sub_ps(gp, lp(q[j].0, ch, q[j].1));
+                dc[j] = _mm256_fmadd_ps(d, d, dc[j]);
+            }
+        }
+        // The packed noise is 1 / (scale v + eps): the larger reciprocal is
+        // the scalar's smaller variance.
+        let ivp = lp(p, 3, ip);
+        for j in 0..N {
+            dc[j] = _mm256_mul_ps(dc[j], _mm256_max_ps(lp(q[j].0, 3, q[j].1), ivp));
+        }
+        dc
+    }
+}
+
+/// `e^-t` of offsets `k0 .. k0 + N`, their colour terms `tc` plus the
+/// geometry terms.
+#[inline(always)]
+unsafe fn geometry_weights<const GEO: u8, const N: usize>(
+    c: &Ctx<'_, '_, impl FloatElement>,
+    rows: &[*const f32; 3],
+    tc: &[__m256; 12],
+    i: usize,
+    k0: usize,
+) -> [__m256; N] {
+    let hole = c.hole as isize;
+    let ip = i as isize;
+    let p = rows[0];
+    let mut q = [(p, 0isize); N];
+    for (j, q) in q.iter_mut().enumerate() {
+        let (ox, oy) = FORWARD[k0 + j];
+        *q = (rows[oy], ip + ox * hole);
+    }
+    let has_n = c.guides.normal.is_some();
+    // SAFETY (the body): inlined into AVX2/FMA code only; loads inside the
+    // packed rows (caller).
+    unsafe {
+        let zero = _mm256_setzero_ps();
+        let mut t = [zero; N];
+        t.copy_from_slice(&tc[k0..k0 + N]);
         let mut nq = [[zero; N]; 3];
         if has_n {
-            let mut dn = [zero; N];
-            for j in 0..3 {
-                np[j] = lp(pr.normal[j]);
-                nq[j] = lq(qr.normal[j]);
-                for k in 0..N {
-                    let d = _mm256_sub_ps(np[j][k], nq[j][k]);
-                    dn[k] = _mm256_fmadd_ps(d, d, dn[k]);
+            // Normals are packed over sigma_normal.
+            for a in 0..3 {
+                let np = lp(p, 4 + a, ip);
+                for j in 0..N {
+                    nq[a][j] = lp(q[j].0, 4 + a, q[j].1);
+                    let d = _mm256_sub_ps(np, nq[a][j]);
+                    t[j] = _mm256_fmadd_ps(d, d, t[j]);
                 }
-            }
-            for k in 0..N {
-                tg[k] = _mm256_mul_ps(dn[k], _mm256_set1_ps(c.inv_normal2));
             }
         }
         match GEO {
-            // Plane: the mean of both pixels' squared tangent-plane distances.
-            0 | 1 => {
-                let mut d = [[zero; N]; 3];
-                for j in 0..3 {
-                    let (a, b) = (lp(pr.position[j]), lq(qr.position[j]));
-                    for k in 0..N {
-                        d[j][k] = _mm256_sub_ps(b[k], a[k]);
+            // Plane: the mean of both pixels' squared tangent-plane distances
+            // (positions packed so that the squares come out scaled).
+            0 => {
+                let mut pd = [zero; N];
+                let mut qd = [zero; N];
+                for a in 0..3 {
+                    let (xp, np) = (lp(p, 7 + a, ip), lp(p, 4 + a, ip));
+                    for j in 0..N {
+                        let d = _mm256_sub_ps(lp(q[j].0, 7 + a, q[j].1), xp);
+                        pd[j] = _mm256_fmadd_ps(np, d, pd[j]);
+                        qd[j] = _mm256_fmadd_ps(nq[a][j], d, qd[j]);
                     }
                 }
-                for k in 0..N {
-                    let g = if GEO == 0 {
-                        let pd =
-                            _mm256_fmadd_ps(np[2][k], d[2][k], _mm256_fmadd_ps(np[1][k], d[1][k], _mm256_mul_ps(np[0][k], d[0][k])));
-                        let qd =
-                            _mm256_fmadd_ps(nq[2][k], d[2][k], _mm256_fmadd_ps(nq[1][k], d[1][k], _mm256_mul_ps(nq[0][k], d[0][k])));
-                        _mm256_mul_ps(_mm256_fmadd_ps(pd, pd, _mm256_mul_ps(qd, qd)), _mm256_set1_ps(0.5 * c.inv_geom2))
-                    } else {
-                        let g = _mm256_fmadd_ps(d[2][k], d[2][k], _mm256_fmadd_ps(d[1][k], d[1][k], _mm256_mul_ps(d[0][k], d[0][k])));
-                        _mm256_mul_ps(g, _mm256_set1_ps(c.inv_geom2))
-                    };
-                    tg[k] = _mm256_add_ps(tg[k], g);
+                for j in 0..N {
+                    t[j] = _mm256_fmadd_ps(qd[j], qd[j], _mm256_fmadd_ps(pd[j], pd[j], t[j]));
+                }
+            }
+            1 => {
+                for a in 0..3 {
+                    let xp = lp(p, 7 + a, ip);
+                    for j in 0..N {
+                        let d = _mm256_sub_ps(lp(q[j].0, 7 + a, q[j].1), xp);
+                        t[j] = _mm256_fmadd_ps(d, d, t[j]);
+                    }
                 }
             }
             2 => {
                 let tiny = _mm256_set1_ps(1e-20);
-                let (zp, zq) = (lp(pr.depth), lq(qr.depth));
-                for k in 0..N {
-                    let dz = _mm256_sub_ps(zq[k], zp[k]);
-                    let zz = _mm256_mul_ps(_mm256_max_ps(zp[k], tiny), _mm256_max_ps(zq[k], tiny));
+                let zp = lp(p, 7, ip);
+                for j in 0..N {
+                    let zq = lp(q[j].0, 7, q[j].1);
+                    let dz = _mm256_sub_ps(zq, zp);
+                    let zz = _mm256_mul_ps(_mm256_max_ps(zp, tiny), _mm256_max_ps(zq, tiny));
                     let r2 = _mm256_div_ps(_mm256_mul_ps(dz, dz), zz);
-                    tg[k] = _mm256_fmadd_ps(r2, _mm256_set1_ps(c.inv_geom2), tg[k]);
+                    t[j] = _mm256_fmadd_ps(r2, _mm256_set1_ps(c.inv_geom2), t[j]);
                 }
             }
             _ => {}
         }
-        exp_neg(core::array::from_fn(|k| _mm256_add_ps(tc[k], tg[k])))
+        let mut lh = [zero; N];
+        for j in 0..N {
+            lh[j] = _mm256_set1_ps(LOG2_H_FORWARD[k0 + j]);
+        }
+        exp_neg(t, lh)
     }
 }
 

@@ -51,6 +51,8 @@ pub(crate) fn pixel<S: FloatElement, A: Real>(c: &Ctx<'_, '_, S>, y: usize, x: u
             // partially covered light edge) does not open the gate to clean ones.
             let vq: A = at(&c.guides.noise, 0, qy, qx);
             let v = if vq < vp { vq } else { vp };
+            // A negative variance counts as 0.
+            let v = if v > A::ZERO { v } else { A::ZERO };
             let mut t = dc / (scale * v + eps);
             if let Some(n) = &c.guides.normal {
                 let nq = v3::<S, A>(n, qy, qx);
