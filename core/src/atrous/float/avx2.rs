@@ -657,9 +657,10 @@ unsafe fn geometry_weights<const GEO: u8, const N: usize>(
     }
 }
 
-/// One term of the accumulation: the rows of the taps `q = p + s` (columns)
-/// and the weights, indexed like the output chunk (`w` already offset by
-/// the ring's base and, for backward links, by `-s`).
+/// One term of the accumulation: the tap rows `q = p + s` and the weights,
+/// both indexed like the output chunk (`src` already offset by `s`; `w` by
+/// the ring's base and, for backward links, by `-s`), so a load is one
+/// pointer plus the output column.
 #[derive(Clone, Copy)]
 struct Link<S> {
     src: [*const S; 7],
@@ -690,8 +691,8 @@ unsafe fn accumulate<S: FloatElement, const G: usize, const VAR: bool, const N: 
     let nin = nc + usize::from(VAR);
     // Forward links (q = p + o, weight row y) and backward ones (q = p - o,
     // weight row y - oy hole), those whose rows exist.
-    let src_row = |yy: usize| -> [*const S; 7] {
-        core::array::from_fn(|ch| if ch < nin { c.src.ptr(ch, yy) } else { core::ptr::null() })
+    let src_row = |yy: usize, s: isize| -> [*const S; 7] {
+        core::array::from_fn(|ch| if ch < nin { c.src.ptr(ch, yy).wrapping_offset(s) } else { core::ptr::null() })
     };
     let mut links = [Link { src: [core::ptr::null(); 7], w: core::ptr::null(), s: 0 }; 24];
     let mut nl = 0;
@@ -699,17 +700,17 @@ unsafe fn accumulate<S: FloatElement, const G: usize, const VAR: bool, const N: 
         let s = ox * hole as isize;
         if y + oy * hole < h {
             let wr = (rings.at(k, y) as *const f32).wrapping_offset(-base);
-            links[nl] = Link { src: src_row(y + oy * hole), w: wr, s };
+            links[nl] = Link { src: src_row(y + oy * hole, s), w: wr, s };
             nl += 1;
         }
         if let Some(r) = y.checked_sub(oy * hole) {
             let wr = (rings.at(k, r) as *const f32).wrapping_offset(-s - base);
-            links[nl] = Link { src: src_row(r), w: wr, s: -s };
+            links[nl] = Link { src: src_row(r, -s), w: wr, s: -s };
             nl += 1;
         }
     }
     let links = &links[..nl];
-    let centre = src_row(y);
+    let centre = src_row(y, 0);
     let mut x = xs;
     while x < xe {
         let xi = x as isize;
@@ -744,14 +745,15 @@ unsafe fn chunks<S: FloatElement, const G: usize, const VAR: bool, const N: usiz
     let nc = 3 * G;
     let nin = nc + usize::from(VAR);
     // SAFETY (every load): rows in range; columns inside or under a mask
-    // (taps outside the image read as 0 and their weight is 0).
-    let ld = |p: *const S, xx: isize| unsafe {
+    // (taps outside the image read as 0 and their weight is 0). `p` points
+    // at the row shifted by `s`, `xx` is the output column.
+    let ld = |p: *const S, xx: isize, s: isize| unsafe {
         if EDGE {
-            let (lo, hi) = inside(xx, w);
+            let (lo, hi) = inside(xx + s, w);
             let hi = hi.min(len).max(lo);
             load8_range(p.wrapping_offset(xx), lo, hi)
         } else {
-            load8(p.offset(xx))
+            load8(p.wrapping_offset(xx))
         }
     };
     let xk: [isize; N] = core::array::from_fn(|k| (x + 8 * k) as isize);
@@ -760,7 +762,7 @@ unsafe fn chunks<S: FloatElement, const G: usize, const VAR: bool, const N: usiz
     let mut wsum = [hc; N];
     for k in 0..N {
         for ch in 0..nin {
-            let v = ld(centre[ch], xk[k]);
+            let v = ld(centre[ch], xk[k], 0);
             acc[k][ch] = if VAR && ch == nc { _mm256_mul_ps(_mm256_mul_ps(hc, hc), v) } else { _mm256_mul_ps(hc, v) };
         }
     }
@@ -772,12 +774,12 @@ unsafe fn chunks<S: FloatElement, const G: usize, const VAR: bool, const N: usiz
         }
         for ch in 0..nc {
             for k in 0..N {
-                acc[k][ch] = _mm256_fmadd_ps(wt[k], ld(l.src[ch], xk[k] + l.s), acc[k][ch]);
+                acc[k][ch] = _mm256_fmadd_ps(wt[k], ld(l.src[ch], xk[k], l.s), acc[k][ch]);
             }
         }
         if VAR {
             for k in 0..N {
-                acc[k][nc] = _mm256_fmadd_ps(_mm256_mul_ps(wt[k], wt[k]), ld(l.src[nc], xk[k] + l.s), acc[k][nc]);
+                acc[k][nc] = _mm256_fmadd_ps(_mm256_mul_ps(wt[k], wt[k]), ld(l.src[nc], xk[k], l.s), acc[k][nc]);
             }
         }
     }
