@@ -351,6 +351,17 @@ impl<'a, T> ViewMut<'a, T> {
         }
     }
 
+    /// Row `y` of planes `0 .. N` at once, each exclusive (the planes are
+    /// disjoint, checked at construction).
+    #[inline]
+    pub fn plane_rows_mut<const N: usize>(&mut self, y: usize) -> [&mut [T]; N] {
+        assert!(N <= self.shape.channels && y < self.shape.height);
+        let (ptr, ps, rs, w) = (self.ptr, self.plane_stride, self.row_stride, self.shape.width);
+        // SAFETY: in range; distinct planes' rows never overlap (checked),
+        // and `&mut self` is exclusive for the lifetime of the result.
+        core::array::from_fn(|c| unsafe { core::slice::from_raw_parts_mut(ptr.add(c * ps + y * rs), w) })
+    }
+
     /// Sets every element to `v`.
     pub fn fill(&mut self, v: T)
     where
