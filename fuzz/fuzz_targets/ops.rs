@@ -178,8 +178,9 @@ fn run<P: HostPrecision>(c: &Case) {
                 depth: None,
             };
             let level = c.k as u32 % 5;
-            let mut scratch = vec![f32::NAN; atrous::step_scratch_len::<P>(level)];
             let out = both::<P>((3, w, h), f, |isa, o| {
+                // Garbage scratch: a weight read before it is written shows up.
+                let mut scratch = vec![f32::NAN; atrous::step_scratch_len::<P>(level)];
                 let p = AtrousParams::default();
                 atrous::step::<P>(isa, level, 1, false, &p, &g, &rs.view(), &mut o.view_mut(), 0, &mut scratch).unwrap()
             });
