@@ -18,6 +18,7 @@ fn main() {
     let bias = values(C, -0.1, 0.1, 3);
     let fixed = std::env::var("P").is_ok_and(|p| p == "fixed");
     let mut best = std::time::Duration::MAX;
+    let mut all = Vec::new();
     if fixed {
         // Q3.12 activations; weights with as many fractional bits as the
         // layer's bit budget allows for this many taps (12 for 3x3, 10 for 5x5).
@@ -41,6 +42,7 @@ fn main() {
             let mut dv = ViewMut::new(&mut out, C, W, H).unwrap().with_frac(12);
             conv::conv2d::<Fixed>(isa, &layer, &sv, &mut dv, 0, &mut scratch).unwrap();
             best = best.min(t.elapsed());
+            all.push(t.elapsed());
         }
     } else {
         let layer = Conv2d {
@@ -60,6 +62,7 @@ fn main() {
             let mut dv = ViewMut::new(&mut out, C, W, H).unwrap();
             conv::conv2d::<F32>(isa, &layer, &sv, &mut dv, 0, &mut scratch).unwrap();
             best = best.min(t.elapsed());
+            all.push(t.elapsed());
         }
     }
     // Peak: 8 f32 multiply-adds per FMA, 16 i16 ones per vpmaddwd.
@@ -68,11 +71,14 @@ fn main() {
     } else {
         ((W * H * C * C * K * K) as f64 / 8.0, mcdenoise_benches::fma_peak_rate(), "FMA")
     };
+    all.sort();
+    let median = all[all.len() / 2];
     eprintln!(
-        "conv {K}x{K} {C}->{C} {W}x{H} {} {}: {:.3} ms, {:.1} % of the {what}-peak loop (fastest of {reps})",
+        "conv {K}x{K} {C}->{C} {W}x{H} {} {}: {:.3} ms fastest ({:.1} % of the {what}-peak loop), {:.3} ms median of {reps}",
         if fixed { "fixed" } else { "f32" },
         isa.name(),
         best.as_secs_f64() * 1e3,
-        100.0 * ops / best.as_secs_f64() / peak
+        100.0 * ops / best.as_secs_f64() / peak,
+        median.as_secs_f64() * 1e3
     );
 }

@@ -159,13 +159,16 @@ unsafe fn block<S: FloatElement, const K: usize, const OB: usize, const NV: usiz
             for kx in 0..K {
                 // SAFETY: x - p + kx + 8 * NV <= width (caller), or only the
                 // in-image lanes are read.
-                let s: [__m256; NV] = core::array::from_fn(|v| unsafe {
-                    if EDGE {
-                        load8_range(sp.wrapping_add(kx + 8 * v), lanes[kx].0, lanes[kx].1)
-                    } else {
-                        load8(sp.add(kx + 8 * v))
-                    }
-                });
+                let mut s = [_mm256_setzero_ps(); NV];
+                for (v, sv) in s.iter_mut().enumerate() {
+                    *sv = unsafe {
+                        if EDGE {
+                            load8_range(sp.wrapping_add(kx + 8 * v), lanes[kx].0, lanes[kx].1)
+                        } else {
+                            load8(sp.add(kx + 8 * v))
+                        }
+                    };
+                }
                 for (o, a) in acc.iter_mut().enumerate() {
                     // SAFETY: the weight index is below cout * cin * K * K.
                     let wv = _mm256_broadcast_ss(unsafe { &*wp.add(wrow + o * ostride + kx) });
