@@ -140,7 +140,7 @@ pub fn rescale(v: i64, from: i32, to: i32) -> i64 {
 
 /// The stored value of `x` in format `frac` (rounded, saturated) — for constants.
 pub fn from_f32(x: f32, frac: i8) -> i16 {
-    let s = x * libm::exp2f(frac as f32);
+    let s = x * pow2(frac);
     let r = if s >= 0.0 { s + 0.5 } else { s - 0.5 };
     if r.is_nan() {
         0
@@ -150,5 +150,28 @@ pub fn from_f32(x: f32, frac: i8) -> i16 {
         -QMAX as i16
     } else {
         r as i16
+    }
+}
+
+/// `2^e` exactly: built from its exponent bits inside the normal range (the
+/// value `libm::exp2f` gives for an integer, without its cost: this sits on
+/// per-block and per-pixel paths), by `exp2f` outside it.
+#[inline]
+pub fn pow2(e: i8) -> f32 {
+    if (-126..=127).contains(&e) {
+        f32::from_bits(((e as i32 + 127) as u32) << 23)
+    } else {
+        libm::exp2f(e as f32)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    /// `pow2` is `exp2f` of an integer, bit for bit, over the whole `i8` range.
+    #[test]
+    fn pow2_is_exp2f_of_an_integer() {
+        for e in i8::MIN..=i8::MAX {
+            assert_eq!(super::pow2(e).to_bits(), libm::exp2f(e as f32).to_bits(), "2^{e}");
+        }
     }
 }
