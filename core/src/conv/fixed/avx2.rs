@@ -189,38 +189,49 @@ unsafe fn block<const OB: usize, const EDGE: bool>(
         // SAFETY: forwarded; pad_rows writes through the pointer only.
         unsafe { pad_rows(b, k, pad.as_mut_ptr() as *mut i16) };
     }
-    let load = |t: usize| -> __m256i {
-        // SAFETY: tap t's columns x - p + kx .. + 16 lie inside the row
-        // (caller), or (edge) inside its padded segment.
-        unsafe {
-            if EDGE {
-                ld16((pad.as_ptr() as *const i16).add((t / k) * SEG + t % k))
-            } else {
-                ld16(base.offset(*offs.get_unchecked(t) + x as isize))
-            }
-        }
-    };
     let _ = p;
     let cout = layer.cout;
     assert!(b.npairs >= 1 && b.packed.len() >= (b.npairs - 1) * cout + OB);
     assert!(b.taps.len() == nt && b.npairs == nt.div_ceil(2) && offs.len() == nt);
     let wp = b.packed.as_ptr();
-    let mut pair = |pi: usize, xa: __m256i, xb: __m256i| {
-        let il = _mm256_unpacklo_epi16(xa, xb);
-        let ih = _mm256_unpackhi_epi16(xa, xb);
-        for o in 0..OB {
-            // SAFETY: pi * cout + o < (npairs - 1) * cout + OB <= packed.len() (asserted).
-            let wv = _mm256_set1_epi32(unsafe { *wp.add(pi * cout + o) });
-            lo[o] = _mm256_add_epi32(lo[o], _mm256_madd_epi16(il, wv));
-            hi[o] = _mm256_add_epi32(hi[o], _mm256_madd_epi16(ih, wv));
-        }
-    };
+    let padp = pad.as_ptr() as *const i16;
+    // Macros rather than closures: the hot loop must not depend on the
+    // inliner (a closure left out of line costs a third of the layer).
+    macro_rules! load {
+        ($t:expr) => {{
+            let t: usize = $t;
+            // SAFETY: tap t's columns x - p + kx .. + 16 lie inside the row
+            // (caller), or (edge) inside its padded segment.
+            unsafe {
+                if EDGE {
+                    ld16(padp.add((t / k) * SEG + t % k))
+                } else {
+                    ld16(base.offset(*offs.get_unchecked(t) + x as isize))
+                }
+            }
+        }};
+    }
+    macro_rules! pair {
+        ($pi:expr, $xa:expr, $xb:expr) => {{
+            let pi: usize = $pi;
+            let il = _mm256_unpacklo_epi16($xa, $xb);
+            let ih = _mm256_unpackhi_epi16($xa, $xb);
+            for o in 0..OB {
+                // SAFETY: pi * cout + o < (npairs - 1) * cout + OB <= packed.len() (asserted).
+                let wv = _mm256_set1_epi32(unsafe { *wp.add(pi * cout + o) });
+                lo[o] = _mm256_add_epi32(lo[o], _mm256_madd_epi16(il, wv));
+                hi[o] = _mm256_add_epi32(hi[o], _mm256_madd_epi16(ih, wv));
+            }
+        }};
+    }
     for pi in 0..nt / 2 {
-        pair(pi, load(2 * pi), load(2 * pi + 1));
+        let (xa, xb) = (load!(2 * pi), load!(2 * pi + 1));
+        pair!(pi, xa, xb);
     }
     if nt % 2 == 1 {
         // The odd last tap pairs with a zero weight (and a zero input).
-        pair(nt / 2, load(nt - 1), zero);
+        let xa = load!(nt - 1);
+        pair!(nt / 2, xa, zero);
     }
     let s = b.s;
     let half = _mm256_set1_epi32(1 << (s - 1));
@@ -230,9 +241,10 @@ unsafe fn block<const OB: usize, const EDGE: bool>(
         let bias = _mm256_set1_epi32(layer.bias.map_or(0, |bb| ld(bb[co])));
         let lim = _mm256_set1_epi32(super::PRE_ACT_MAX as i32);
         let nlim = _mm256_set1_epi32(-super::PRE_ACT_MAX as i32);
-        let clampv = |v: __m256i| _mm256_max_epi32(_mm256_min_epi32(v, lim), nlim);
-        let mut l = clampv(_mm256_add_epi32(_mm256_sra_epi32(_mm256_add_epi32(lo[o], half), sh), bias));
-        let mut r = clampv(_mm256_add_epi32(_mm256_sra_epi32(_mm256_add_epi32(hi[o], half), sh), bias));
+        let mut l = _mm256_add_epi32(_mm256_sra_epi32(_mm256_add_epi32(lo[o], half), sh), bias);
+        let mut r = _mm256_add_epi32(_mm256_sra_epi32(_mm256_add_epi32(hi[o], half), sh), bias);
+        l = _mm256_max_epi32(_mm256_min_epi32(l, lim), nlim);
+        r = _mm256_max_epi32(_mm256_min_epi32(r, lim), nlim);
         match layer.act {
             Activation::Identity => {}
             Activation::Relu => {
@@ -242,13 +254,18 @@ unsafe fn block<const OB: usize, const EDGE: bool>(
             Activation::LeakyRelu(sl) => {
                 let q = _mm256_set1_epi32(crate::fixed::from_f32(sl, KERNEL_FRAC) as i32);
                 let rnd = _mm256_set1_epi32(1 << (KERNEL_FRAC - 1));
-                let leak = |v: __m256i| {
-                    let m =
-                        _mm256_srai_epi32::<{ KERNEL_FRAC as i32 }>(_mm256_add_epi32(_mm256_mullo_epi32(v, q), rnd));
-                    _mm256_blendv_epi8(m, v, _mm256_cmpgt_epi32(v, zero))
-                };
-                l = leak(l);
-                r = leak(r);
+                macro_rules! leak {
+                    ($v:expr) => {{
+                        let v = $v;
+                        let m = _mm256_srai_epi32::<{ KERNEL_FRAC as i32 }>(_mm256_add_epi32(
+                            _mm256_mullo_epi32(v, q),
+                            rnd,
+                        ));
+                        _mm256_blendv_epi8(m, v, _mm256_cmpgt_epi32(v, zero))
+                    }};
+                }
+                l = leak!(l);
+                r = leak!(r);
             }
         }
         let out = _mm256_max_epi16(_mm256_packs_epi32(l, r), _mm256_set1_epi16(-QMAX as i16));
