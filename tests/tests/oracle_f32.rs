@@ -248,3 +248,39 @@ fn fused_across_many_tiles_matches_oracle() {
         assert_close(&format!("fused many tiles {isa:?}"), &out.data, &want, 1e-4, 3e-5);
     }
 }
+
+#[test]
+fn fused_box_path_with_logit_bands_90_nats_apart_matches_oracle() {
+    // Bands of rows alternate between logits near +45 and near -45 (with
+    // band heights that are no multiple of any window size): windows in a
+    // low band under a tile maximum 90 nats higher have box sums that
+    // underflow and fall back to the direct window; windows straddling two
+    // bands mix weights e^-90 apart (subnormal ratios in f32).
+    let (w, h) = (61, 83);
+    let sizes = [3, 5, 7, 9, 11, 13, 15];
+    let mut imp = Img::random(sizes.len(), w, h, -2.0, 2.0, 31);
+    for c in 0..sizes.len() {
+        for y in 0..h {
+            let band = if (y / (4 + c)) % 2 == 0 { 45.0 } else { -45.0 };
+            for x in 0..w {
+                *imp.at_mut(c, y, x) += band;
+            }
+        }
+    }
+    let fus = Img::random(sizes.len(), w, h, -3.0, 3.0, 32);
+    let rad = Img::random(3, w, h, 0.0, 50.0, 33);
+    let want = oracle::fused(&sizes, &imp.to_f64(), Some(&fus.to_f64()), None, &rad.to_f64(), 3, w, h);
+    for isa in isas_under_test() {
+        let inp = FusedInputs {
+            sizes: &sizes,
+            importance: imp.view(),
+            fusion: Some(fus.view()),
+            albedo: None,
+            radiance: rad.view(),
+        };
+        let mut scratch = vec![0.0; softmax::fused_scratch_len::<F32>(WindowPath::BoxSum, &sizes, 3, w)];
+        let mut out = Img::filled(3, w, h, f32::NAN);
+        softmax::fused_filter::<F32>(isa, WindowPath::BoxSum, &inp, &mut out.view_mut(), 0, &mut scratch).unwrap();
+        assert_close(&format!("fused logit bands {isa:?}"), &out.data, &want, 1e-4, 3e-5);
+    }
+}
