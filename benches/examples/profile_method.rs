@@ -1,5 +1,6 @@
 //! Per-stage times of a method on the 1280x720 tiled Cornell frame:
-//! `profile_method [atrous|sure-atrous] [threads] [reps]` (release).
+//! `profile_method [atrous|sure-atrous] [threads] [reps]` (release);
+//! `NOPAIR=1` drops the frame's second half-sample image.
 use mcdenoise::methods::{self, MethodKind, Settings, Timings};
 use mcdenoise_benches::tiled_cornell;
 
@@ -11,7 +12,11 @@ fn main() {
     };
     let threads: usize = args.get(2).and_then(|v| v.parse().ok()).unwrap_or(1);
     let reps: u32 = args.get(3).and_then(|v| v.parse().ok()).unwrap_or(10);
-    let frame = tiled_cornell();
+    let mut frame = tiled_cornell();
+    if std::env::var("NOPAIR").is_ok_and(|v| v == "1") {
+        // The single-estimate path: no second half-sample image.
+        frame.remove(mcdenoise::frame::Buffer::ColorB);
+    }
     let settings = Settings { threads, ..Settings::default() };
     let mut den = methods::create(kind, &settings, &frame).unwrap();
     let mut ctx = methods::context(&settings).unwrap();

@@ -545,24 +545,89 @@ impl<P: HostPrecision> Atrous<P> {
     }
 }
 
+/// Compare-exchange: afterwards `v[i] <= v[j]` (selects, no branches, so the
+/// pixel loops that run the networks below vectorise).
+#[inline(always)]
+fn cx<const N: usize>(v: &mut [f32; N], i: usize, j: usize) {
+    let (a, b) = (v[i], v[j]);
+    let swap = b < a;
+    v[i] = if swap { b } else { a };
+    v[j] = if swap { a } else { b };
+}
+
+/// Sorts eight values (Batcher's odd-even merge network, 19 exchanges).
+#[inline(always)]
+fn sort8(v: &mut [f32; 8]) {
+    for (i, j) in [(0, 1), (2, 3), (4, 5), (6, 7), (0, 2), (1, 3), (4, 6), (5, 7), (1, 2), (5, 6)] {
+        cx(v, i, j);
+    }
+    for (i, j) in [(0, 4), (1, 5), (2, 6), (3, 7), (2, 4), (3, 5), (1, 2), (3, 4), (5, 6)] {
+        cx(v, i, j);
+    }
+}
+
+/// The median of nine values (a 19-exchange selection network; `v` is left
+/// partly sorted).
+#[inline(always)]
+fn median9(v: &mut [f32; 9]) -> f32 {
+    for (i, j) in [(1, 2), (4, 5), (7, 8), (0, 1), (3, 4), (6, 7), (1, 2), (4, 5), (7, 8), (0, 3)] {
+        cx(v, i, j);
+    }
+    for (i, j) in [(5, 8), (4, 7), (3, 6), (1, 4), (2, 5), (4, 7), (2, 4), (4, 6), (2, 4)] {
+        cx(v, i, j);
+    }
+    v[4]
+}
+
+/// The median of the in-image values among the 3x3 neighbourhood of
+/// `(px, py)` in plane `p` (`centre`: whether the pixel itself counts), by
+/// sorting: the border pixels' path, and the reference of the networks.
+fn median_at(p: &[f32], w: usize, h: usize, px: usize, py: usize, centre: bool) -> Option<f32> {
+    let mut nb = [0.0f32; 9];
+    let mut m = 0;
+    for qy in py.saturating_sub(1)..(py + 2).min(h) {
+        for qx in px.saturating_sub(1)..(px + 2).min(w) {
+            if centre || (qy, qx) != (py, px) {
+                nb[m] = p[qy * w + qx];
+                m += 1;
+            }
+        }
+    }
+    let vals = &mut nb[..m];
+    vals.sort_unstable_by(f32::total_cmp);
+    (m > 0).then(|| if m % 2 == 1 { vals[m / 2] } else { 0.5 * (vals[m / 2 - 1] + vals[m / 2]) })
+}
+
 /// 3x3 median (of the in-image pixels), scaled by 1.27: the median of nine
-/// chi-square(3)/3 variates is about 0.79 of their mean. Rows in parallel.
+/// chi-square(3)/3 variates is about 0.79 of their mean. Rows in parallel;
+/// interior pixels through a selection network.
 fn median3(ctx: &Ctx, v: &[f32], w: usize, h: usize, out: &mut [f32]) {
     ctx.pool.planes(vec![out], w, |start, runs| {
         let py = start / w;
-        let mut nb = [0.0f32; 9];
-        for (px, o) in runs[0].iter_mut().enumerate() {
-            let mut m = 0;
-            for qy in py.saturating_sub(1)..(py + 2).min(h) {
-                for qx in px.saturating_sub(1)..(px + 2).min(w) {
-                    nb[m] = v[qy * w + qx];
-                    m += 1;
-                }
+        let o = &mut *runs[0];
+        if py >= 1 && py + 1 < h && w >= 3 {
+            let r: [&[f32]; 3] = core::array::from_fn(|k| &v[(py + k - 1) * w..(py + k) * w]);
+            for x in 1..w - 1 {
+                let mut nb = [
+                    r[0][x - 1],
+                    r[0][x],
+                    r[0][x + 1],
+                    r[1][x - 1],
+                    r[1][x],
+                    r[1][x + 1],
+                    r[2][x - 1],
+                    r[2][x],
+                    r[2][x + 1],
+                ];
+                o[x] = 1.27 * median9(&mut nb);
             }
-            let vals = &mut nb[..m];
-            vals.sort_unstable_by(f32::total_cmp);
-            let med = if m % 2 == 1 { vals[m / 2] } else { 0.5 * (vals[m / 2 - 1] + vals[m / 2]) };
-            *o = 1.27 * med;
+            for x in [0, w - 1] {
+                o[x] = 1.27 * median_at(v, w, h, x, py, true).unwrap_or(0.0);
+            }
+        } else {
+            for (px, o) in o.iter_mut().enumerate() {
+                *o = 1.27 * median_at(v, w, h, px, py, true).unwrap_or(0.0);
+            }
         }
     });
 }
@@ -572,33 +637,117 @@ fn median3(ctx: &Ctx, v: &[f32], w: usize, h: usize, out: &mut [f32]) {
 /// edge from reading as noise: next to a light's edge the neighbours on the
 /// other side are a minority. For white noise `Var(median of 8) ~ 0.2 sigma^2`,
 /// hence `E|y - median|^2 ~ 1.2 sigma^2` and the factor 0.84. At borders the
-/// median of the neighbours there is. Rows in parallel.
+/// median of the neighbours there is. Rows in parallel; interior pixels sort
+/// their neighbours with a network (the border ones with a sort).
 fn local_noise(ctx: &Ctx, y: &[f32], w: usize, h: usize, v: &mut [f32]) {
     let n = w * h;
     ctx.pool.planes(vec![v], w, |start, runs| {
         let py = start / w;
-        let mut nb = [0.0f32; 8];
-        for (px, o) in runs[0].iter_mut().enumerate() {
-            let mut s = 0.0;
-            for c in 0..3 {
-                let mut m = 0;
-                for qy in py.saturating_sub(1)..(py + 2).min(h) {
-                    for qx in px.saturating_sub(1)..(px + 2).min(w) {
-                        if (qy, qx) != (py, px) {
-                            nb[m] = y[c * n + qy * w + qx];
-                            m += 1;
-                        }
-                    }
+        let o = &mut *runs[0];
+        o.fill(0.0);
+        for c in 0..3 {
+            let p = &y[c * n..(c + 1) * n];
+            let border = |x: usize, o: &mut f32| {
+                if let Some(med) = median_at(p, w, h, x, py, false) {
+                    let d = p[py * w + x] - med;
+                    *o += 0.84 * d * d;
                 }
-                if m > 0 {
-                    let vals = &mut nb[..m];
-                    vals.sort_unstable_by(f32::total_cmp);
-                    let med = if m % 2 == 1 { vals[m / 2] } else { 0.5 * (vals[m / 2 - 1] + vals[m / 2]) };
-                    let d = y[c * n + py * w + px] - med;
-                    s += 0.84 * d * d;
+            };
+            if py >= 1 && py + 1 < h && w >= 3 {
+                let r: [&[f32]; 3] = core::array::from_fn(|k| &p[(py + k - 1) * w..(py + k) * w]);
+                for x in 1..w - 1 {
+                    let mut nb = [
+                        r[0][x - 1],
+                        r[0][x],
+                        r[0][x + 1],
+                        r[1][x - 1],
+                        r[1][x + 1],
+                        r[2][x - 1],
+                        r[2][x],
+                        r[2][x + 1],
+                    ];
+                    sort8(&mut nb);
+                    let d = r[1][x] - 0.5 * (nb[3] + nb[4]);
+                    o[x] += 0.84 * d * d;
+                }
+                border(0, &mut o[0]);
+                border(w - 1, &mut o[w - 1]);
+            } else {
+                for (x, o) in o.iter_mut().enumerate() {
+                    border(x, o);
                 }
             }
-            *o = s / 3.0;
+        }
+        for o in o.iter_mut() {
+            *o /= 3.0;
         }
     });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::methods::{context, Settings};
+
+    /// A small generator (xorshift) of values with many ties and both zeros.
+    fn values(n: usize, seed: u64) -> Vec<f32> {
+        let mut s = seed.max(1);
+        (0..n)
+            .map(|_| {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                let v = ((s >> 40) % 11) as f32 - 5.0;
+                if v == 0.0 && s & 1 == 1 {
+                    -0.0
+                } else {
+                    v * 0.37
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn networks_sort_and_select_like_a_sort() {
+        for seed in 1..2000u64 {
+            let v = values(9, seed);
+            let mut sorted = v.clone();
+            sorted.sort_unstable_by(f32::total_cmp);
+            let mut a8: [f32; 8] = core::array::from_fn(|i| v[i]);
+            sort8(&mut a8);
+            let mut s8 = v[..8].to_vec();
+            s8.sort_unstable_by(f32::total_cmp);
+            assert!(a8.iter().zip(&s8).all(|(a, b)| a == b), "sort8 {v:?}: {a8:?}");
+            let mut a9: [f32; 9] = core::array::from_fn(|i| v[i]);
+            assert_eq!(median9(&mut a9), sorted[4], "median9 {v:?}");
+        }
+    }
+
+    #[test]
+    fn noise_estimates_equal_the_sorting_reference() {
+        let ctx = context(&Settings { threads: 2, ..Settings::default() }).unwrap();
+        for (w, h) in [(37, 23), (3, 3), (2, 5), (1, 1), (9, 1), (1, 7)] {
+            let n = w * h;
+            let img = values(3 * n, (w * 31 + h) as u64);
+            let mut got = vec![f32::NAN; n];
+            local_noise(&ctx, &img, w, h, &mut got);
+            let mut med = vec![f32::NAN; n];
+            median3(&ctx, &got, w, h, &mut med);
+            for py in 0..h {
+                for px in 0..w {
+                    let mut s = 0.0f32;
+                    for c in 0..3 {
+                        let p = &img[c * n..(c + 1) * n];
+                        if let Some(m) = median_at(p, w, h, px, py, false) {
+                            let d = p[py * w + px] - m;
+                            s += 0.84 * d * d;
+                        }
+                    }
+                    assert_eq!(got[py * w + px], s / 3.0, "local noise {w}x{h} at ({px}, {py})");
+                    let m9 = 1.27 * median_at(&got, w, h, px, py, true).unwrap();
+                    assert_eq!(med[py * w + px], m9, "median3 {w}x{h} at ({px}, {py})");
+                }
+            }
+        }
+    }
 }
