@@ -598,36 +598,38 @@ fn median_at(p: &[f32], w: usize, h: usize, px: usize, py: usize, centre: bool) 
     (m > 0).then(|| if m % 2 == 1 { vals[m / 2] } else { 0.5 * (vals[m / 2 - 1] + vals[m / 2]) })
 }
 
+/// Rows `py - 1 ..= py + 1` of plane `p` when row `py` has interior pixels
+/// (pixels whose 3x3 neighbourhood lies inside the image: columns `1 .. w - 1`).
+fn rows_3x3(p: &[f32], w: usize, h: usize, py: usize) -> Option<[&[f32]; 3]> {
+    (py >= 1 && py + 1 < h && w >= 3).then(|| core::array::from_fn(|k| &p[(py + k - 1) * w..(py + k) * w]))
+}
+
+/// The 3x3 neighbourhood of interior column `x`, row-major (centre at 4).
+#[inline(always)]
+fn nb_3x3(r: &[&[f32]; 3], x: usize) -> [f32; 9] {
+    let (a, b, c) = (&r[0][x - 1..x + 2], &r[1][x - 1..x + 2], &r[2][x - 1..x + 2]);
+    [a[0], a[1], a[2], b[0], b[1], b[2], c[0], c[1], c[2]]
+}
+
 /// 3x3 median (of the in-image pixels), scaled by 1.27: the median of nine
 /// chi-square(3)/3 variates is about 0.79 of their mean. Rows in parallel;
 /// interior pixels through a selection network.
+// Index loops: the enumerate/skip/take form measured slower (4.8-6.3 against 3.8-4.4 ms per frame).
+#[allow(clippy::needless_range_loop)]
 fn median3(ctx: &Ctx, v: &[f32], w: usize, h: usize, out: &mut [f32]) {
     ctx.pool.planes(vec![out], w, |start, runs| {
         let py = start / w;
         let o = &mut *runs[0];
-        if py >= 1 && py + 1 < h && w >= 3 {
-            let r: [&[f32]; 3] = core::array::from_fn(|k| &v[(py + k - 1) * w..(py + k) * w]);
-            for x in 1..w - 1 {
-                let mut nb = [
-                    r[0][x - 1],
-                    r[0][x],
-                    r[0][x + 1],
-                    r[1][x - 1],
-                    r[1][x],
-                    r[1][x + 1],
-                    r[2][x - 1],
-                    r[2][x],
-                    r[2][x + 1],
-                ];
-                o[x] = 1.27 * median9(&mut nb);
+        let border = |x: usize| 1.27 * median_at(v, w, h, x, py, true).unwrap_or(0.0);
+        match rows_3x3(v, w, h, py) {
+            Some(r) => {
+                for x in 1..w - 1 {
+                    o[x] = 1.27 * median9(&mut nb_3x3(&r, x));
+                }
+                o[0] = border(0);
+                o[w - 1] = border(w - 1);
             }
-            for x in [0, w - 1] {
-                o[x] = 1.27 * median_at(v, w, h, x, py, true).unwrap_or(0.0);
-            }
-        } else {
-            for (px, o) in o.iter_mut().enumerate() {
-                *o = 1.27 * median_at(v, w, h, px, py, true).unwrap_or(0.0);
-            }
+            None => o.iter_mut().enumerate().for_each(|(x, o)| *o = border(x)),
         }
     });
 }
@@ -639,6 +641,7 @@ fn median3(ctx: &Ctx, v: &[f32], w: usize, h: usize, out: &mut [f32]) {
 /// hence `E|y - median|^2 ~ 1.2 sigma^2` and the factor 0.84. At borders the
 /// median of the neighbours there is. Rows in parallel; interior pixels sort
 /// their neighbours with a network (the border ones with a sort).
+#[allow(clippy::needless_range_loop)] // as in median3
 fn local_noise(ctx: &Ctx, y: &[f32], w: usize, h: usize, v: &mut [f32]) {
     let n = w * h;
     ctx.pool.planes(vec![v], w, |start, runs| {
@@ -653,29 +656,19 @@ fn local_noise(ctx: &Ctx, y: &[f32], w: usize, h: usize, v: &mut [f32]) {
                     *o += 0.84 * d * d;
                 }
             };
-            if py >= 1 && py + 1 < h && w >= 3 {
-                let r: [&[f32]; 3] = core::array::from_fn(|k| &p[(py + k - 1) * w..(py + k) * w]);
-                for x in 1..w - 1 {
-                    let mut nb = [
-                        r[0][x - 1],
-                        r[0][x],
-                        r[0][x + 1],
-                        r[1][x - 1],
-                        r[1][x + 1],
-                        r[2][x - 1],
-                        r[2][x],
-                        r[2][x + 1],
-                    ];
-                    sort8(&mut nb);
-                    let d = r[1][x] - 0.5 * (nb[3] + nb[4]);
-                    o[x] += 0.84 * d * d;
+            match rows_3x3(p, w, h, py) {
+                Some(r) => {
+                    for x in 1..w - 1 {
+                        let nb = nb_3x3(&r, x);
+                        let mut e = [nb[0], nb[1], nb[2], nb[3], nb[5], nb[6], nb[7], nb[8]];
+                        sort8(&mut e);
+                        let d = nb[4] - 0.5 * (e[3] + e[4]);
+                        o[x] += 0.84 * d * d;
+                    }
+                    border(0, &mut o[0]);
+                    border(w - 1, &mut o[w - 1]);
                 }
-                border(0, &mut o[0]);
-                border(w - 1, &mut o[w - 1]);
-            } else {
-                for (x, o) in o.iter_mut().enumerate() {
-                    border(x, o);
-                }
+                None => o.iter_mut().enumerate().for_each(|(x, o)| border(x, o)),
             }
         }
         for o in o.iter_mut() {
