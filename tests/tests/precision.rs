@@ -238,6 +238,68 @@ fn fixed_simd_is_bit_identical_to_scalar() {
     }
 }
 
+/// Fixed-point convolution, SIMD against scalar bit for bit, on what the
+/// test above does not reach: output bands starting below row 0 (the
+/// kernels keep rows between output rows), odd and large channel counts,
+/// stored values at both ends of i16 (-32768 reads as -32767), weights at
+/// the edge of the bit budget, and shifts outside the vector range.
+#[test]
+fn fixed_conv_simd_matches_scalar_in_bands_at_the_extremes() {
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    let mut next = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    for isa in simd_isas() {
+        for (k, cin, cout) in [(3, 14, 14), (5, 7, 13), (3, 33, 3), (1, 1, 7), (5, 2, 1), (3, 3, 6)] {
+            let per = cin * k * k;
+            // sum |w| per output channel at most 65535 stored units.
+            let wmax = (65535 / per) as u64;
+            let weights: Vec<i16> =
+                (0..cout * per).map(|_| ((next() % (2 * wmax + 1)) as i64 - wmax as i64) as i16).collect();
+            let bias: Vec<i16> = (0..cout).map(|_| next() as i16 / 4).collect();
+            for (w, h) in [(1, 1), (2, 3), (15, 2), (16, 7), (17, 5), (33, 12), (70, 4)] {
+                let src: Vec<i16> = (0..cin * w * h)
+                    .map(|_| match next() % 8 {
+                        0 => i16::MIN,
+                        1 => i16::MAX,
+                        _ => next() as i16,
+                    })
+                    .collect();
+                let sv = mcdenoise_core::View::new(&src, cin, w, h).unwrap().with_frac(8);
+                for (wf, of) in [(12i8, 6i8), (4, 12)] {
+                    for act in [Activation::Identity, Activation::Relu, Activation::LeakyRelu(0.1)] {
+                        let layer = Conv2d { k, cin, cout, weights: &weights, bias: Some(&bias), act, weight_frac: wf };
+                        let len = conv::conv2d_scratch_len::<Fixed>(k, cin, cout, w);
+                        let mut want = vec![1111i16; cout * w * h];
+                        let mut wv = mcdenoise_core::ViewMut::new(&mut want, cout, w, h).unwrap().with_frac(of);
+                        conv::conv2d::<Fixed>(Isa::Scalar, &layer, &sv, &mut wv, 0, &mut vec![0.0; len]).unwrap();
+                        for band in [1, 2, 5, h] {
+                            let mut got = vec![-2222i16; cout * w * h];
+                            let mut gv = mcdenoise_core::ViewMut::new(&mut got, cout, w, h).unwrap().with_frac(of);
+                            // One scratch, reused dirty by every band.
+                            let mut scratch = vec![f32::from_bits(0x7fc0_1234); len];
+                            let mut y0 = 0;
+                            while y0 < h {
+                                let n = band.min(h - y0);
+                                conv::conv2d::<Fixed>(isa, &layer, &sv, &mut gv.rows_mut(y0, n), y0, &mut scratch)
+                                    .unwrap();
+                                y0 += n;
+                            }
+                            assert_eq!(
+                                want, got,
+                                "{isa:?} k={k} {cin}->{cout} {w}x{h} band {band} {act:?} s={wf}+8-{of}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
 #[test]
 fn fixed_conv_refuses_weights_over_the_bit_budget() {
     let w = vec![30000i16; 9 * 2];

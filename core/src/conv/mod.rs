@@ -154,9 +154,10 @@ float_conv!(F16, f32);
 float_conv!(F16Arith, crate::real::H);
 
 impl ConvPrecision for Fixed {
-    /// Packed weight pairs (one i32 per output channel and tap pair).
-    fn scratch_len_impl(k: usize, cin: usize, cout: usize, _width: usize) -> usize {
-        cout.saturating_mul(cin.saturating_mul(k * k).div_ceil(2))
+    /// Packed weight pairs (one i32 per output channel, channel pair and
+    /// tap) and a ring of `k` rows of interleaved channel pairs.
+    fn scratch_len_impl(k: usize, cin: usize, cout: usize, width: usize) -> usize {
+        fixed::scratch_len(k, cin, cout, width)
     }
     /// The bit budget: with inputs in `[-32767, 32767]`, every output
     /// channel's `sum |w|` up to 65535 keeps the exact i32 sum below 2^31.

@@ -381,10 +381,10 @@ unsafe fn pack_row<S: FloatElement, const GEO: u8>(c: &Ctx<'_, '_, S>, out: *mut
                                                  // `(n'(p) . d')^2 = (n(p) . d)^2 / (2 sigma_plane^2)`), times
                                                  // sqrt(1 / sigma^2) for the position term; depth as is.
     let has_n = !r.normal[0].is_null();
-    let sn = if has_n { c.inv_normal2.sqrt() } else { 0.0 };
+    let sn = if has_n { libm::sqrtf(c.inv_normal2) } else { 0.0 };
     let sx = match GEO {
-        0 => (0.5 * c.inv_geom2).sqrt() / sn,
-        1 => c.inv_geom2.sqrt(),
+        0 => libm::sqrtf(0.5 * c.inv_geom2) / sn,
+        1 => libm::sqrtf(c.inv_geom2),
         _ => 1.0,
     };
     let scale = [1.0, 1.0, 1.0, 0.0, sn, sn, sn, sx, sx, sx];

@@ -37,6 +37,27 @@ pub(crate) fn forward(
     }
 }
 
+/// Words of one ring row of the AVX2 kernel: columns `-p .. round_up(w,
+/// 16) + p`, so the sixteen-pixel block at any `x < w` (a multiple of 16)
+/// reads inside.
+pub(crate) fn ring_row(w: usize, p: usize) -> usize {
+    w.div_ceil(16).saturating_mul(16).saturating_add(2 * p)
+}
+
+/// Words of packed weight pairs by channel pair: one per output channel,
+/// channel pair and tap (at least the tap-pair packing's
+/// `cout * ceil(cin k^2 / 2)` the AVX-512 kernel uses).
+pub(crate) fn weight_words(k: usize, cin: usize, cout: usize) -> usize {
+    cout.saturating_mul(cin.div_ceil(2)).saturating_mul(k * k)
+}
+
+/// Scratch words of the fixed-point convolution: the weight pairs, then the
+/// AVX2 kernel's ring of `k` input rows of every channel pair.
+pub(crate) fn scratch_len(k: usize, cin: usize, cout: usize, width: usize) -> usize {
+    let ring = k.saturating_mul(cin.div_ceil(2)).saturating_mul(ring_row(width, k / 2));
+    weight_words(k, cin, cout).saturating_add(ring)
+}
+
 /// One valid tap of an output row: input plane, input row, column offset.
 #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 #[derive(Clone, Copy, Default)]
