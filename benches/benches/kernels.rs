@@ -169,6 +169,32 @@ fn bench_conv(c: &mut Criterion) {
                 });
             }
         }
+        // Fixed point: inputs in Q3.12, weights in Q1.14 (sum |w| per output
+        // channel within the bit budget), outputs in Q3.12.
+        let sq: Vec<i16> = src.iter().map(|&v| (v * 4096.0).round() as i16).collect();
+        let wq: Vec<i16> = wts.iter().map(|&v| (v * 256.0).round() as i16).collect();
+        let bq: Vec<i16> = bias.iter().map(|&v| (v * 4096.0).round() as i16).collect();
+        let svq = View::new(&sq, cin, W, H).unwrap().with_frac(12);
+        let mut outq = vec![0i16; cout * PLANE];
+        let lq = Conv2d { k, cin, cout, weights: &wq, bias: Some(&bq), act: Activation::LeakyRelu(0.1), weight_frac: 8 };
+        for isa in isas() {
+            for p in pools() {
+                let len = conv::conv2d_scratch_len::<Fixed>(k, cin, cout, W);
+                let mut scratch = Scratch::new();
+                g.bench_function(
+                    BenchmarkId::new(format!("k{k}/fixed/{}", isa.name()), format!("{}t", p.threads())),
+                    |b| {
+                        b.iter(|| {
+                            let dst = ViewMut::new(&mut outq, cout, W, H).unwrap().with_frac(12);
+                            p.bands(dst, 1, &mut scratch, len, |band, y0, s| {
+                                conv::conv2d::<Fixed>(isa, &lq, &svq, band, y0, s)
+                            })
+                            .unwrap()
+                        })
+                    },
+                );
+            }
+        }
     }
     #[cfg(target_arch = "x86_64")]
     if Isa::Avx2.is_supported() {
