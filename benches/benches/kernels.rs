@@ -176,7 +176,8 @@ fn bench_conv(c: &mut Criterion) {
         let bq: Vec<i16> = bias.iter().map(|&v| (v * 4096.0).round() as i16).collect();
         let svq = View::new(&sq, cin, W, H).unwrap().with_frac(12);
         let mut outq = vec![0i16; cout * PLANE];
-        let lq = Conv2d { k, cin, cout, weights: &wq, bias: Some(&bq), act: Activation::LeakyRelu(0.1), weight_frac: 8 };
+        let lq =
+            Conv2d { k, cin, cout, weights: &wq, bias: Some(&bq), act: Activation::LeakyRelu(0.1), weight_frac: 8 };
         for isa in isas() {
             for p in pools() {
                 let len = conv::conv2d_scratch_len::<Fixed>(k, cin, cout, W);
