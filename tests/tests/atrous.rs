@@ -219,6 +219,147 @@ fn sure_shrink_simd_is_bit_identical_to_scalar() {
     }
 }
 
+/// The one-pass shrinkage of every level (`sure_shrink_levels`) gives, bit
+/// for bit, what the per-level passes give: a zeroed reconstruction, each
+/// level's `sure_shrink` in turn, then `c_N` plus it. For both noise
+/// sources, one to five levels, widths with partial chunks and below the
+/// window, bands of 1, 3 and all rows, every instruction set.
+#[test]
+fn sure_shrink_levels_equals_the_per_level_passes() {
+    use mcdenoise_core::atrous::SureSource;
+    use mcdenoise_core::{View, ViewMut};
+    for isa in isas_under_test() {
+        for (w, h) in [(1, 1), (3, 7), (13, 9), (37, 12)] {
+            for (source, nc, nn) in [(SureSource::Pair, 6, 6), (SureSource::Single, 4, 5)] {
+                for levels in [1, 2, 5] {
+                    let n = w * h;
+                    // Level images: the input (nc planes; one extra plane,
+                    // which the shrinkage must ignore), then outputs that
+                    // drift from it level by level, with noise small enough
+                    // that the chosen weights are not all 0.
+                    let mut first = Img::random(nc + 1, w, h, -1.0, 2.0, (w * 31 + h) as u64);
+                    if source == SureSource::Single {
+                        // A small variance plane.
+                        for v in &mut first.data[3 * n..4 * n] {
+                            *v = v.abs() * 0.01;
+                        }
+                    }
+                    let mut images = vec![first];
+                    for l in 0..levels {
+                        let prev = &images[l];
+                        let mut next = Img::random(nn, w, h, -1.0, 2.0, (l * 7 + w) as u64);
+                        for i in 0..3 * n {
+                            next.data[i] = 0.6 * prev.data[i] + 0.4 * next.data[i];
+                        }
+                        if source == SureSource::Pair {
+                            for i in 3 * n..6 * n {
+                                next.data[i] = prev.data[i] + 0.05 * (next.data[i] - 0.5);
+                            }
+                        } else {
+                            for v in &mut next.data[3 * n..] {
+                                *v = v.abs() * 0.01;
+                            }
+                        }
+                        images.push(next);
+                    }
+                    let views: Vec<View<'_, f32>> = images
+                        .iter()
+                        .enumerate()
+                        .map(|(l, im)| View::new(&im.data, if l == 0 { nc + 1 } else { nn }, w, h).unwrap())
+                        .collect();
+                    // Per level, as the host ran it before.
+                    let mut recon = vec![0.0f32; 3 * n];
+                    let mut scratch = vec![f32::NAN; atrous::sure_scratch_len(w)];
+                    for l in 0..levels {
+                        let cur = if l == 0 {
+                            View::new(&images[0].data[..nc * n], nc, w, h).unwrap()
+                        } else {
+                            View::new(&images[l].data[..nc * n], nc, w, h).unwrap()
+                        };
+                        let mut rv = ViewMut::new(&mut recon, 3, w, h).unwrap();
+                        atrous::sure_shrink(
+                            isa,
+                            source,
+                            &atrous::SURE_CANDIDATES,
+                            &cur,
+                            &views[l + 1],
+                            &mut rv,
+                            0,
+                            &mut scratch,
+                        )
+                        .unwrap();
+                    }
+                    let want: Vec<f32> = (0..3 * n).map(|i| images[levels].data[i] + recon[i]).collect();
+                    assert!(recon.iter().any(|&v| v != 0.0), "some detail kept ({w}x{h} {source:?})");
+                    for band in [1, 3, h] {
+                        let mut got = vec![f32::NAN; 3 * n];
+                        let mut gv = ViewMut::new(&mut got, 3, w, h).unwrap();
+                        let mut scratch = vec![f32::NAN; atrous::sure_levels_scratch_len(levels, w)];
+                        let mut y0 = 0;
+                        while y0 < h {
+                            let rows = band.min(h - y0);
+                            atrous::sure_shrink_levels(
+                                isa,
+                                source,
+                                &atrous::SURE_CANDIDATES,
+                                &views,
+                                &mut gv.rows_mut(y0, rows),
+                                y0,
+                                &mut scratch,
+                            )
+                            .unwrap();
+                            y0 += rows;
+                        }
+                        for (i, (x, y)) in want.iter().zip(&got).enumerate() {
+                            assert!(
+                                x.to_bits() == y.to_bits(),
+                                "{isa:?} {source:?} {w}x{h} {levels} levels band {band} at {i}: {x} vs {y}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The one-pass shrinkage refuses what it cannot run, naming it.
+#[test]
+fn sure_shrink_levels_refuses_bad_shapes() {
+    use mcdenoise_core::atrous::SureSource;
+    use mcdenoise_core::{View, ViewMut};
+    let (w, h) = (4, 3);
+    let six = vec![0.5f32; 6 * w * h];
+    let five = vec![0.5f32; 5 * w * h];
+    let mut out = vec![0.0f32; 3 * w * h];
+    let mut scratch = vec![0.0; atrous::sure_levels_scratch_len(8, w)];
+    let v6 = View::new(&six, 6, w, h).unwrap();
+    let v5 = View::new(&five, 5, w, h).unwrap();
+    let mut run = |images: &[View<'_, f32>], source| {
+        let mut ov = ViewMut::new(&mut out, 3, w, h).unwrap();
+        atrous::sure_shrink_levels(Isa::Scalar, source, &atrous::SURE_CANDIDATES, images, &mut ov, 0, &mut scratch)
+            .unwrap_err()
+            .to_string()
+    };
+    assert!(run(&[v6], SureSource::Pair).contains("SURE level images"));
+    assert!(run(&vec![v6; atrous::MAX_SURE_LEVELS + 2], SureSource::Pair).contains("SURE level images"));
+    assert!(run(&[v6, v5], SureSource::Pair).contains("SURE level output"));
+    assert!(run(&[v5.channels_range(0, 3).unwrap(), v5], SureSource::Single).contains("SURE level input"));
+    let mut small = vec![0.0; atrous::sure_levels_scratch_len(1, w) - 1];
+    let mut ov = ViewMut::new(&mut out, 3, w, h).unwrap();
+    let e = atrous::sure_shrink_levels(
+        Isa::Scalar,
+        SureSource::Pair,
+        &atrous::SURE_CANDIDATES,
+        &[v6, v6],
+        &mut ov,
+        0,
+        &mut small,
+    )
+    .unwrap_err();
+    assert!(e.to_string().to_lowercase().contains("scratch"), "{e}");
+}
+
 #[test]
 fn sure_pick_minimises_the_risk() {
     // e = detail energy, s = its noise: pure noise keeps nothing, strong signal keeps all.

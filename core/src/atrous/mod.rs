@@ -61,7 +61,7 @@ pub(crate) mod fixed;
 pub(crate) mod float;
 mod sure;
 
-pub use sure::{sure_scratch_len, sure_shrink};
+pub use sure::{sure_levels_scratch_len, sure_scratch_len, sure_shrink, sure_shrink_levels, MAX_SURE_LEVELS};
 
 /// The B3-spline taps.
 pub const B3: [f32; 5] = [1.0 / 16.0, 1.0 / 4.0, 3.0 / 8.0, 1.0 / 4.0, 1.0 / 16.0];

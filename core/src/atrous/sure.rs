@@ -79,6 +79,106 @@ pub fn sure_shrink<S: FloatElement>(
     Ok(())
 }
 
+/// Most levels [`sure_shrink_levels`] takes in one call.
+pub const MAX_SURE_LEVELS: usize = 8;
+
+/// Scratch words [`sure_shrink_levels`] needs for `levels` levels (level
+/// images minus one) on images `width` wide: per level a ring of window
+/// rows, plus the row buffers.
+pub fn sure_levels_scratch_len(levels: usize, width: usize) -> usize {
+    levels.saturating_mul(2 * WIN).saturating_add(9).saturating_mul(width)
+}
+
+/// Every level's SURE shrinkage and the reconstruction in one streaming
+/// pass: rows `y0 ..` of `out` (3 planes) get `c_N + sum_i beta_i D_i`,
+/// `D_i` the detail between `images[i]` and `images[i + 1]`, `c_N` the
+/// first three planes of the last image.
+///
+/// The same values, bit for bit, as [`sure_shrink`] called for each level
+/// in turn into a zeroed reconstruction, then `c_N` plus it; but each level
+/// image is read once instead of twice and the reconstruction is never
+/// stored, so it moves less than half the bytes. `images[0]` is the first
+/// level's input (at least 6 planes for [`SureSource::Pair`], 4 for
+/// [`SureSource::Single`]; planes past those are ignored) and every later
+/// one a level's output (6 or 5 planes), 2 to `MAX_SURE_LEVELS + 1` of them.
+/// `scratch` holds at least [`sure_levels_scratch_len`] words.
+pub fn sure_shrink_levels<S: FloatElement>(
+    isa: Isa,
+    source: SureSource,
+    candidates: &[f32],
+    images: &[View<'_, S>],
+    out: &mut ViewMut<'_, f32>,
+    y0: usize,
+    scratch: &mut [f32],
+) -> Result<()> {
+    isa.check()?;
+    check_candidates(candidates)?;
+    if images.len() < 2 || images.len() > MAX_SURE_LEVELS + 1 {
+        return Err(crate::Error::BadParameter {
+            what: "SURE level images",
+            expected: "2 to MAX_SURE_LEVELS + 1 of them (the first level's input and each output)",
+        });
+    }
+    let s = images[0].shape();
+    let (nc, nn) = match source {
+        SureSource::Pair => (6, 6),
+        SureSource::Single => (4, 5),
+    };
+    let plane = |c| Shape::new(c, s.width, s.height);
+    if s.channels < nc {
+        check_shape("SURE level input", plane(nc), s)?;
+    }
+    for im in &images[1..] {
+        check_shape("SURE level output", plane(nn), im.shape())?;
+    }
+    check_band("SURE reconstruction", plane(3), out.shape(), y0)?;
+    let levels = images.len() - 1;
+    let need = sure_levels_scratch_len(levels, s.width);
+    if scratch.len() < need {
+        return Err(crate::Error::ScratchTooSmall { needed: need, got: scratch.len() });
+    }
+    if out.height() == 0 || s.width == 0 {
+        return Ok(());
+    }
+    let scratch = &mut scratch[..need];
+    match isa {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the ISA was checked.
+        Isa::Avx2 => unsafe { run_levels_avx2(source, candidates, images, out, y0, scratch) },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the ISA was checked.
+        Isa::Avx512 => unsafe { run_levels_avx512(source, candidates, images, out, y0, scratch) },
+        _ => run_levels::<S, false>(source, candidates, images, out, y0, scratch),
+    }
+    Ok(())
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma,f16c")]
+unsafe fn run_levels_avx2<S: FloatElement>(
+    source: SureSource,
+    candidates: &[f32],
+    images: &[View<'_, S>],
+    out: &mut ViewMut<'_, f32>,
+    y0: usize,
+    scratch: &mut [f32],
+) {
+    run_levels::<S, true>(source, candidates, images, out, y0, scratch)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl,avx2,fma,f16c")]
+unsafe fn run_levels_avx512<S: FloatElement>(
+    source: SureSource,
+    candidates: &[f32],
+    images: &[View<'_, S>],
+    out: &mut ViewMut<'_, f32>,
+    y0: usize,
+    scratch: &mut [f32],
+) {
+    run_levels::<S, true>(source, candidates, images, out, y0, scratch)
+}
+
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma,f16c")]
 unsafe fn run_avx2<S: FloatElement>(
@@ -176,6 +276,89 @@ fn hsum(t: &[f32], out: &mut [f32]) {
     }
 }
 
+/// The window rows of one level: the horizontal sums of the detail energy
+/// and of the noise, `WIN` rows each, row `q` in slot `q % WIN`.
+struct Ring<'a> {
+    e: &'a mut [f32],
+    s: &'a mut [f32],
+}
+
+impl Ring<'_> {
+    /// Adds row `q`'s horizontal sums (`te`, `ts`: scratch rows).
+    #[inline(always)]
+    fn push<S: FloatElement>(
+        &mut self,
+        source: SureSource,
+        (cur, next): (&View<'_, S>, &View<'_, S>),
+        q: usize,
+        te: &mut [f32],
+        ts: &mut [f32],
+    ) {
+        let w = te.len();
+        terms(source, cur, next, q, te, ts);
+        let slot = q % WIN;
+        hsum(te, &mut self.e[slot * w..(slot + 1) * w]);
+        hsum(ts, &mut self.s[slot * w..(slot + 1) * w]);
+    }
+
+    /// The window sums of rows `lo .. hi` (top to bottom) into `se`, `ss`.
+    #[inline(always)]
+    fn vertical(&self, lo: usize, hi: usize, se: &mut [f32], ss: &mut [f32]) {
+        let w = se.len();
+        se.fill(0.0);
+        ss.fill(0.0);
+        for q in lo..hi {
+            let slot = q % WIN;
+            let (re, rs) = (&self.e[slot * w..(slot + 1) * w], &self.s[slot * w..(slot + 1) * w]);
+            for x in 0..w {
+                se[x] += re[x];
+                ss[x] += rs[x];
+            }
+        }
+    }
+}
+
+/// The risk-minimising weight of each pixel of a row from its window sums,
+/// then `o += beta (a - b)` per channel.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn select_update<S: FloatElement, const AVX2: bool>(
+    candidates: &[f32],
+    (se, ss): (&[f32], &[f32]),
+    a: &[&[S]; 3],
+    b: &[&[S]; 3],
+    o: &mut [&mut [f32]; 3],
+    best_r: &mut [f32],
+    best_b: &mut [f32],
+) {
+    let w = se.len();
+    #[cfg(target_arch = "x86_64")]
+    if AVX2 {
+        // SAFETY: `AVX2` is only set in code compiled for AVX2.
+        unsafe { select_update_avx2(candidates, se, ss, a, b, o, w) };
+        return;
+    }
+    // The risk-minimising weight, the first candidate on ties (as
+    // [`super::best_beta`]), then the update.
+    best_r.fill(f32::INFINITY);
+    best_b.fill(candidates[0]);
+    for &bt in candidates {
+        let (ce, cs) = ((1.0 - bt) * (1.0 - bt), 2.0 * bt - 1.0);
+        for x in 0..w {
+            let risk = ce * se[x] + cs * ss[x];
+            if risk < best_r[x] {
+                best_r[x] = risk;
+                best_b[x] = bt;
+            }
+        }
+    }
+    for c in 0..3 {
+        for x in 0..w {
+            o[c][x] += best_b[x] * (a[c][x].to_f32() - b[c][x].to_f32());
+        }
+    }
+}
+
 #[inline(always)]
 fn run<S: FloatElement, const AVX2: bool>(
     source: SureSource,
@@ -192,6 +375,7 @@ fn run<S: FloatElement, const AVX2: bool>(
     let (ts, rest) = rest.split_at_mut(w);
     let (ring_e, rest) = rest.split_at_mut(WIN * w);
     let (ring_s, rest) = rest.split_at_mut(WIN * w);
+    let mut ring = Ring { e: ring_e, s: ring_s };
     let (se, rest) = rest.split_at_mut(w);
     let (ss, rest) = rest.split_at_mut(w);
     let (best_r, rest) = rest.split_at_mut(w);
@@ -202,49 +386,77 @@ fn run<S: FloatElement, const AVX2: bool>(
     for y in y0..y1 {
         let (lo, hi) = (y.saturating_sub(r), (y + r + 1).min(h));
         while filled < hi {
-            terms(source, cur, next, filled, te, ts);
-            let slot = filled % WIN;
-            hsum(te, &mut ring_e[slot * w..(slot + 1) * w]);
-            hsum(ts, &mut ring_s[slot * w..(slot + 1) * w]);
+            ring.push(source, (cur, next), filled, te, ts);
             filled += 1;
         }
-        // Vertical sums, rows top to bottom.
-        se.fill(0.0);
-        ss.fill(0.0);
-        for q in lo..hi {
-            let slot = q % WIN;
-            let (re, rs) = (&ring_e[slot * w..(slot + 1) * w], &ring_s[slot * w..(slot + 1) * w]);
-            for x in 0..w {
-                se[x] += re[x];
-                ss[x] += rs[x];
-            }
-        }
+        ring.vertical(lo, hi, se, ss);
         let (a, b): ([&[S]; 3], [&[S]; 3]) =
             (core::array::from_fn(|c| &cur.row(c, y)[..w]), core::array::from_fn(|c| &next.row(c, y)[..w]));
         let mut o = recon.plane_rows_mut::<3>(y - y0);
-        #[cfg(target_arch = "x86_64")]
-        if AVX2 {
-            // SAFETY: `run::<_, true>` is only called from AVX2 code.
-            unsafe { select_update_avx2(candidates, se, ss, &a, &b, &mut o, w) };
-            continue;
-        }
-        // The risk-minimising weight, the first candidate on ties (as
-        // [`super::best_beta`]), then the update.
-        best_r.fill(f32::INFINITY);
-        best_b.fill(candidates[0]);
-        for &bt in candidates {
-            let (ce, cs) = ((1.0 - bt) * (1.0 - bt), 2.0 * bt - 1.0);
-            for x in 0..w {
-                let risk = ce * se[x] + cs * ss[x];
-                if risk < best_r[x] {
-                    best_r[x] = risk;
-                    best_b[x] = bt;
+        select_update::<S, AVX2>(candidates, (se, ss), &a, &b, &mut o, best_r, best_b);
+    }
+}
+
+/// [`sure_shrink_levels`] after its checks: the rings of every level
+/// advance together; per row the levels add their shrunk detail into a row
+/// accumulator in level order (as the per-level passes add into the
+/// reconstruction), then `c_N` plus it goes out.
+#[inline(always)]
+fn run_levels<S: FloatElement, const AVX2: bool>(
+    source: SureSource,
+    candidates: &[f32],
+    images: &[View<'_, S>],
+    out: &mut ViewMut<'_, f32>,
+    y0: usize,
+    scratch: &mut [f32],
+) {
+    let (w, h) = (images[0].width(), images[0].height());
+    let r = SURE_RADIUS;
+    let levels = images.len() - 1;
+    let (te, rest) = scratch.split_at_mut(w);
+    let (ts, rest) = rest.split_at_mut(w);
+    let (se, rest) = rest.split_at_mut(w);
+    let (ss, rest) = rest.split_at_mut(w);
+    let (best_r, rest) = rest.split_at_mut(w);
+    let (best_b, rest) = rest.split_at_mut(w);
+    let (acc, mut rest) = rest.split_at_mut(3 * w);
+    let mut rings: [Option<Ring<'_>>; MAX_SURE_LEVELS] = Default::default();
+    for ring in rings.iter_mut().take(levels) {
+        let (e, more) = rest.split_at_mut(WIN * w);
+        let (s, more) = more.split_at_mut(WIN * w);
+        *ring = Some(Ring { e, s });
+        rest = more;
+    }
+    let y1 = y0 + out.height();
+    let last = &images[levels];
+    let mut filled = y0.saturating_sub(r);
+    for y in y0..y1 {
+        let (lo, hi) = (y.saturating_sub(r), (y + r + 1).min(h));
+        while filled < hi {
+            for (l, ring) in rings.iter_mut().take(levels).enumerate() {
+                if let Some(ring) = ring {
+                    ring.push(source, (&images[l], &images[l + 1]), filled, te, ts);
                 }
             }
+            filled += 1;
         }
-        for c in 0..3 {
+        acc.fill(0.0);
+        for (l, ring) in rings.iter().take(levels).enumerate() {
+            let Some(ring) = ring else { continue };
+            ring.vertical(lo, hi, se, ss);
+            let (cur, next) = (&images[l], &images[l + 1]);
+            let (a, b): ([&[S]; 3], [&[S]; 3]) =
+                (core::array::from_fn(|c| &cur.row(c, y)[..w]), core::array::from_fn(|c| &next.row(c, y)[..w]));
+            let (a0, rest) = acc.split_at_mut(w);
+            let (a1, a2) = rest.split_at_mut(w);
+            let mut o = [a0, a1, a2];
+            select_update::<S, AVX2>(candidates, (se, ss), &a, &b, &mut o, best_r, best_b);
+        }
+        let mut o = out.plane_rows_mut::<3>(y - y0);
+        for (c, oc) in o.iter_mut().enumerate() {
+            let (base, add) = (&last.row(c, y)[..w], &acc[c * w..(c + 1) * w]);
             for x in 0..w {
-                o[c][x] += best_b[x] * (a[c][x].to_f32() - b[c][x].to_f32());
+                oc[x] = base[x].to_f32() + add[x];
             }
         }
     }

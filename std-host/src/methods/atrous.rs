@@ -222,26 +222,29 @@ struct Bufs<T: bytemuck::Pod> {
     noise_raw: Aligned<f32>,
     noise: Aligned<f32>,
     zeros: Aligned<f32>,
-    /// Level outputs, alternating.
+    /// Level outputs, alternating (`atrous`).
     ping: Planes<T>,
     pong: Planes<T>,
-    /// Sum of the shrunk details (SURE).
-    recon: Aligned<f32>,
+    /// Every level's output (`sure-atrous`: the shrinkage reads them all in
+    /// one pass after the levels).
+    levels: Vec<Planes<T>>,
     out: Aligned<f32>,
 }
 
 impl<T: bytemuck::Pod + Default> Bufs<T> {
-    fn new(w: usize, h: usize, nsrc: usize, nout: usize) -> Self {
+    fn new(w: usize, h: usize, nsrc: usize, nout: usize, sure: bool) -> Self {
         let n = w * h;
+        // `sure-atrous` keeps every level's output instead of two.
+        let (rows, kept) = if sure { (0, LEVELS as usize) } else { (h, 0) };
         Bufs {
             n,
             c0: Aligned::zeroed(nsrc * n),
             noise_raw: Aligned::zeroed(n),
             noise: Aligned::zeroed(n),
             zeros: Aligned::zeroed(n),
-            ping: Planes::new(nout, w, h),
-            pong: Planes::new(nout, w, h),
-            recon: Aligned::zeroed(3 * n),
+            ping: Planes::new(nout, w, rows),
+            pong: Planes::new(nout, w, rows),
+            levels: (0..kept).map(|_| Planes::new(nout, w, h)).collect(),
             out: Aligned::zeroed(3 * n),
         }
     }
@@ -330,42 +333,50 @@ fn prepare(
     });
 }
 
-/// One level's SURE shrinkage into `recon`, in bands. `cur` and `next` are
-/// (data, planes, fixed-point format) of the level's input and output;
-/// storage other than f32 and f16 (fixed point) is decoded to f32 first.
-#[allow(clippy::too_many_arguments)]
-fn shrink<P: HostPrecision>(
+/// Every level's SURE shrinkage and the reconstruction `c_N + sum beta_i
+/// D_i` into `out` (3 planes), in bands, one pass over the level images
+/// (`images[0]` the first level's input, then each level's output: data,
+/// planes, fixed-point format). Storage other than f32 and f16 (fixed point)
+/// is decoded to f32 first.
+fn shrink_levels<P: HostPrecision>(
     ctx: &mut Ctx,
     source: SureSource,
-    cur: (&[P::Store], usize, i8),
-    next: (&[P::Store], usize, i8),
-    recon: &mut [f32],
+    images: &[(&[P::Store], usize, i8)],
+    out: &mut [f32],
     w: usize,
     h: usize,
 ) -> Result<()> {
     let isa = ctx.isa;
-    let len = atrous::sure_scratch_len(w);
-    let (cd, cc, cfrac) = cur;
-    let (nd, nc, nfrac) = next;
-    let rv = ViewMut::new(recon, 3, w, h)?;
+    let len = atrous::sure_levels_scratch_len(images.len() - 1, w);
+    let ov = ViewMut::new(out, 3, w, h)?;
     macro_rules! go {
-        ($c:expr, $n:expr) => {{
-            let (cv, nv) = (View::new($c, cc, w, h)?, View::new($n, nc, w, h)?);
-            bands(ctx, rv, 1, len, |band, y0, s| {
-                atrous::sure_shrink(isa, source, &SURE_CANDIDATES, &cv, &nv, band, y0, s)
+        ($data:expr) => {{
+            let views = images
+                .iter()
+                .zip($data)
+                .map(|(&(_, c, _), d)| View::new(d, c, w, h))
+                .collect::<std::result::Result<Vec<_>, _>>()?;
+            bands(ctx, ov, 1, len, |band, y0, s| {
+                atrous::sure_shrink_levels(isa, source, &SURE_CANDIDATES, &views, band, y0, s)
             })
         }};
     }
-    if let (Some(c), Some(nx)) = (as_f32(cd), as_f32(nd)) {
-        go!(c, nx)
-    } else if let (Some(c), Some(nx)) = (as_f16(cd), as_f16(nd)) {
-        go!(c, nx)
+    let f32s: Option<Vec<&[f32]>> = images.iter().map(|&(d, _, _)| as_f32(d)).collect();
+    let f16s: Option<Vec<&[half::f16]>> = images.iter().map(|&(d, _, _)| as_f16(d)).collect();
+    if let Some(d) = f32s {
+        go!(d)
+    } else if let Some(d) = f16s {
+        go!(d)
     } else {
-        let mut c = vec![0.0f32; cd.len()];
-        let mut nx = vec![0.0f32; nd.len()];
-        P::decode(cd, &mut c, cfrac);
-        P::decode(nd, &mut nx, nfrac);
-        go!(&c[..], &nx[..])
+        let decoded: Vec<Vec<f32>> = images
+            .iter()
+            .map(|&(d, _, frac)| {
+                let mut v = vec![0.0f32; d.len()];
+                P::decode(d, &mut v, frac);
+                v
+            })
+            .collect();
+        go!(decoded.iter().map(|v| &v[..]))
     }
 }
 
@@ -403,7 +414,7 @@ impl<P: HostPrecision> Denoiser for Atrous<P> {
         let nout = 3 * groups + 2 * usize::from(sure_single);
         let bufs = match self.bufs.take() {
             Some(bf) if bf.n == n && bf.ping.width == w && bf.ping.channels == nout => bf,
-            _ => Bufs::new(w, h, nsrc, nout),
+            _ => Bufs::new(w, h, nsrc, nout, self.sure),
         };
         let mut bf = bufs;
         let result = self.run(f, ctx, t, &mut bf, (a, b, albedo, normal, position, depth), (groups, nsrc, nout));
@@ -464,65 +475,78 @@ impl<P: HostPrecision> Atrous<P> {
             position: position_g.as_ref().map(|p| p.view(3, w, h)),
             depth: depth_g.as_ref().map(|p| p.view(1, w, h)),
         };
-        if self.sure {
-            bf.recon.fill(0.0);
-        }
         let (isa, params) = (ctx.isa, self.params);
         let source = if sure_pair { SureSource::Pair } else { SureSource::Single };
         let frac = c0.frac();
         bf.ping.frac = frac;
         bf.pong.frac = frac;
-        let (mut src, mut dst) = (&mut bf.ping, &mut bf.pong);
-        for level in 0..LEVELS {
-            // Level 0 reads the prepared images; later levels the previous
-            // output's first nsrc planes.
-            let cv = if level == 0 { c0.view(nsrc, w, h) } else { src.view().channels_range(0, nsrc)? };
-            let dv = dst.view_mut();
-            t.time("a-trous levels", || {
-                bands(ctx, dv, 1, atrous::step_scratch_len::<P>(level), |band, y0, s| {
-                    atrous::step::<P>(isa, level, groups, sure_single, &params, &guides, &cv, band, y0, s)
-                })
-            })?;
-            if self.sure {
-                let cur = if level == 0 { c0.data() } else { &src.data[..nsrc * n] };
-                let (cur, next) = ((cur, nsrc, frac), (&dst.data[..], nout, frac));
-                t.time("SURE shrinkage", || shrink::<P>(ctx, source, cur, next, &mut bf.recon, w, h))?;
-            }
-            debug_assert_eq!(dst.channels, nout);
-            std::mem::swap(&mut src, &mut dst);
-        }
-        // c_N of the first image (the last output, now in src), plus the kept
-        // detail, then remodulated: one parallel pass when the level output
-        // is f32 and nothing is added, else summed into `bf.out` first.
-        let last = src;
         let mut out = vec![0.0f32; 3 * n];
-        let direct = as_f32(&last.data[..3 * n]).filter(|_| !self.sure && albedo.is_some());
-        let base: &[f32] = match direct {
-            Some(c) => c,
-            None => {
-                t.time("reconstruct", || {
-                    let sum = if albedo.is_some() { &mut bf.out[..] } else { &mut out[..] };
-                    let (data, frac, recon) = (&last.data[..3 * n], last.frac, &bf.recon[..]);
-                    let sure = self.sure;
-                    // Runs of whole rows in parallel (a serial pass was 2 ms of a 2-thread frame).
-                    ctx.pool.planes(vec![sum], w * 32, |start, runs| {
-                        let o = &mut *runs[0];
-                        let src = &data[start..start + o.len()];
-                        match as_f32(src) {
-                            Some(c) => o.copy_from_slice(c),
-                            None => P::decode(src, o, frac),
-                        }
-                        if sure {
-                            for (o, r) in o.iter_mut().zip(&recon[start..]) {
-                                *o += *r;
+        // What remodulation reads when there is albedo (else the result is
+        // already in `out`).
+        let base: Option<&[f32]> = if self.sure {
+            // Every level's output kept, then one pass of shrinkage and
+            // reconstruction (c_N + the kept detail) over all of them.
+            for l in &mut bf.levels {
+                l.frac = frac;
+            }
+            for level in 0..LEVELS {
+                let (done, rest) = bf.levels.split_at_mut(level as usize);
+                let cv = match done.last() {
+                    None => c0.view(nsrc, w, h),
+                    Some(prev) => prev.view().channels_range(0, nsrc)?,
+                };
+                let dv = rest[0].view_mut();
+                t.time("a-trous levels", || {
+                    bands(ctx, dv, 1, atrous::step_scratch_len::<P>(level), |band, y0, s| {
+                        atrous::step::<P>(isa, level, groups, sure_single, &params, &guides, &cv, band, y0, s)
+                    })
+                })?;
+            }
+            let mut images = vec![(c0.data(), nsrc, frac)];
+            images.extend(bf.levels.iter().map(|l| (&l.data[..], nout, frac)));
+            let sum = if albedo.is_some() { &mut bf.out[..] } else { &mut out[..] };
+            t.time("SURE shrinkage + reconstruct", || shrink_levels::<P>(ctx, source, &images, sum, w, h))?;
+            albedo.map(|_| &bf.out[..])
+        } else {
+            let (mut src, mut dst) = (&mut bf.ping, &mut bf.pong);
+            for level in 0..LEVELS {
+                // Level 0 reads the prepared images; later levels the previous
+                // output's first nsrc planes.
+                let cv = if level == 0 { c0.view(nsrc, w, h) } else { src.view().channels_range(0, nsrc)? };
+                let dv = dst.view_mut();
+                t.time("a-trous levels", || {
+                    bands(ctx, dv, 1, atrous::step_scratch_len::<P>(level), |band, y0, s| {
+                        atrous::step::<P>(isa, level, groups, sure_single, &params, &guides, &cv, band, y0, s)
+                    })
+                })?;
+                debug_assert_eq!(dst.channels, nout);
+                std::mem::swap(&mut src, &mut dst);
+            }
+            // c_N of the first image (the last output, now in src), then
+            // remodulated: read in place when the level output is f32, else
+            // decoded into `bf.out` (or the output) first.
+            let last = src;
+            match as_f32(&last.data[..3 * n]).filter(|_| albedo.is_some()) {
+                Some(c) => Some(c),
+                None => {
+                    t.time("reconstruct", || {
+                        let sum = if albedo.is_some() { &mut bf.out[..] } else { &mut out[..] };
+                        let (data, frac) = (&last.data[..3 * n], last.frac);
+                        // Runs of whole rows in parallel (a serial pass was 2 ms of a 2-thread frame).
+                        ctx.pool.planes(vec![sum], w * 32, |start, runs| {
+                            let o = &mut *runs[0];
+                            let src = &data[start..start + o.len()];
+                            match as_f32(src) {
+                                Some(c) => o.copy_from_slice(c),
+                                None => P::decode(src, o, frac),
                             }
-                        }
+                        });
                     });
-                });
-                &bf.out
+                    albedo.map(|_| &bf.out[..])
+                }
             }
         };
-        if let Some(al) = albedo {
+        if let (Some(al), Some(base)) = (albedo, base) {
             t.time("remodulate", || -> Result<()> {
                 let (sv, av) = (View::new(base, 3, w, h)?, View::new(al, 3, w, h)?);
                 bands(ctx, ViewMut::new(&mut out, 3, w, h)?, 1, 0, |band, y0, _| {
