@@ -66,16 +66,7 @@ pub fn sure_shrink<S: FloatElement>(
     if recon.height() == 0 || s.width == 0 {
         return Ok(());
     }
-    let scratch = &mut scratch[..need];
-    match isa {
-        #[cfg(target_arch = "x86_64")]
-        // SAFETY: the ISA was checked.
-        Isa::Avx2 => unsafe { run_avx2(source, candidates, cur, next, recon, y0, scratch) },
-        #[cfg(target_arch = "x86_64")]
-        // SAFETY: the ISA was checked.
-        Isa::Avx512 => unsafe { run_avx512(source, candidates, cur, next, recon, y0, scratch) },
-        _ => run::<S, false>(source, candidates, cur, next, recon, y0, scratch),
-    }
+    dispatch(isa, Job { source, candidates, images: &[*cur, *next], into: Sink::Add }, recon, y0, &mut scratch[..need]);
     Ok(())
 }
 
@@ -140,71 +131,59 @@ pub fn sure_shrink_levels<S: FloatElement>(
     if out.height() == 0 || s.width == 0 {
         return Ok(());
     }
-    let scratch = &mut scratch[..need];
-    match isa {
-        #[cfg(target_arch = "x86_64")]
-        // SAFETY: the ISA was checked.
-        Isa::Avx2 => unsafe { run_levels_avx2(source, candidates, images, out, y0, scratch) },
-        #[cfg(target_arch = "x86_64")]
-        // SAFETY: the ISA was checked.
-        Isa::Avx512 => unsafe { run_levels_avx512(source, candidates, images, out, y0, scratch) },
-        _ => run_levels::<S, false>(source, candidates, images, out, y0, scratch),
-    }
+    dispatch(isa, Job { source, candidates, images, into: Sink::Reconstruct }, out, y0, &mut scratch[..need]);
     Ok(())
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma,f16c")]
-unsafe fn run_levels_avx2<S: FloatElement>(
+/// Where the shrunk detail goes.
+#[derive(Clone, Copy, PartialEq)]
+enum Sink {
+    /// Added to the output rows as they are (one level: [`sure_shrink`]).
+    Add,
+    /// The output gets `c_N` plus every level's (the sum of those kept in
+    /// a row accumulator first, in level order).
+    Reconstruct,
+}
+
+/// What a shrinkage pass runs on, past its checks.
+#[derive(Clone, Copy)]
+struct Job<'j, 'a, S> {
     source: SureSource,
-    candidates: &[f32],
-    images: &[View<'_, S>],
+    candidates: &'j [f32],
+    /// Level images: the first level's input, then each level's output.
+    images: &'j [View<'a, S>],
+    into: Sink,
+}
+
+/// Runs `job` with the instruction set's code (checked by the caller).
+fn dispatch<S: FloatElement>(
+    isa: Isa,
+    job: Job<'_, '_, S>,
     out: &mut ViewMut<'_, f32>,
     y0: usize,
     scratch: &mut [f32],
 ) {
-    run_levels::<S, true>(source, candidates, images, out, y0, scratch)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl,avx2,fma,f16c")]
-unsafe fn run_levels_avx512<S: FloatElement>(
-    source: SureSource,
-    candidates: &[f32],
-    images: &[View<'_, S>],
-    out: &mut ViewMut<'_, f32>,
-    y0: usize,
-    scratch: &mut [f32],
-) {
-    run_levels::<S, true>(source, candidates, images, out, y0, scratch)
+    match isa {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the ISA was checked.
+        Isa::Avx2 => unsafe { run_avx2(job, out, y0, scratch) },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the ISA was checked.
+        Isa::Avx512 => unsafe { run_avx512(job, out, y0, scratch) },
+        _ => run::<S, false>(job, out, y0, scratch),
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma,f16c")]
-unsafe fn run_avx2<S: FloatElement>(
-    source: SureSource,
-    candidates: &[f32],
-    cur: &View<'_, S>,
-    next: &View<'_, S>,
-    recon: &mut ViewMut<'_, f32>,
-    y0: usize,
-    scratch: &mut [f32],
-) {
-    run::<S, true>(source, candidates, cur, next, recon, y0, scratch)
+unsafe fn run_avx2<S: FloatElement>(job: Job<'_, '_, S>, out: &mut ViewMut<'_, f32>, y0: usize, scratch: &mut [f32]) {
+    run::<S, true>(job, out, y0, scratch)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl,avx2,fma,f16c")]
-unsafe fn run_avx512<S: FloatElement>(
-    source: SureSource,
-    candidates: &[f32],
-    cur: &View<'_, S>,
-    next: &View<'_, S>,
-    recon: &mut ViewMut<'_, f32>,
-    y0: usize,
-    scratch: &mut [f32],
-) {
-    run::<S, true>(source, candidates, cur, next, recon, y0, scratch)
+unsafe fn run_avx512<S: FloatElement>(job: Job<'_, '_, S>, out: &mut ViewMut<'_, f32>, y0: usize, scratch: &mut [f32]) {
+    run::<S, true>(job, out, y0, scratch)
 }
 
 /// Per-pixel terms of row `y`: detail energy into `e`, noise into `s`.
@@ -359,57 +338,18 @@ fn select_update<S: FloatElement, const AVX2: bool>(
     }
 }
 
+/// A shrinkage pass after its checks: the window rings of every level
+/// advance together; per row each level adds its shrunk detail, in level
+/// order, into the output rows ([`Sink::Add`]) or into a row accumulator
+/// that then goes out added to `c_N` ([`Sink::Reconstruct`]).
 #[inline(always)]
 fn run<S: FloatElement, const AVX2: bool>(
-    source: SureSource,
-    candidates: &[f32],
-    cur: &View<'_, S>,
-    next: &View<'_, S>,
-    recon: &mut ViewMut<'_, f32>,
-    y0: usize,
-    scratch: &mut [f32],
-) {
-    let (w, h) = (cur.width(), cur.height());
-    let r = SURE_RADIUS;
-    let (te, rest) = scratch.split_at_mut(w);
-    let (ts, rest) = rest.split_at_mut(w);
-    let (ring_e, rest) = rest.split_at_mut(WIN * w);
-    let (ring_s, rest) = rest.split_at_mut(WIN * w);
-    let mut ring = Ring { e: ring_e, s: ring_s };
-    let (se, rest) = rest.split_at_mut(w);
-    let (ss, rest) = rest.split_at_mut(w);
-    let (best_r, rest) = rest.split_at_mut(w);
-    let best_b = &mut rest[..w];
-    let y1 = y0 + recon.height();
-    // Next row whose horizontal sums enter the ring.
-    let mut filled = y0.saturating_sub(r);
-    for y in y0..y1 {
-        let (lo, hi) = (y.saturating_sub(r), (y + r + 1).min(h));
-        while filled < hi {
-            ring.push(source, (cur, next), filled, te, ts);
-            filled += 1;
-        }
-        ring.vertical(lo, hi, se, ss);
-        let (a, b): ([&[S]; 3], [&[S]; 3]) =
-            (core::array::from_fn(|c| &cur.row(c, y)[..w]), core::array::from_fn(|c| &next.row(c, y)[..w]));
-        let mut o = recon.plane_rows_mut::<3>(y - y0);
-        select_update::<S, AVX2>(candidates, (se, ss), &a, &b, &mut o, best_r, best_b);
-    }
-}
-
-/// [`sure_shrink_levels`] after its checks: the rings of every level
-/// advance together; per row the levels add their shrunk detail into a row
-/// accumulator in level order (as the per-level passes add into the
-/// reconstruction), then `c_N` plus it goes out.
-#[inline(always)]
-fn run_levels<S: FloatElement, const AVX2: bool>(
-    source: SureSource,
-    candidates: &[f32],
-    images: &[View<'_, S>],
+    job: Job<'_, '_, S>,
     out: &mut ViewMut<'_, f32>,
     y0: usize,
     scratch: &mut [f32],
 ) {
+    let Job { source, candidates, images, into } = job;
     let (w, h) = (images[0].width(), images[0].height());
     let r = SURE_RADIUS;
     let levels = images.len() - 1;
@@ -418,8 +358,7 @@ fn run_levels<S: FloatElement, const AVX2: bool>(
     let (se, rest) = rest.split_at_mut(w);
     let (ss, rest) = rest.split_at_mut(w);
     let (best_r, rest) = rest.split_at_mut(w);
-    let (best_b, rest) = rest.split_at_mut(w);
-    let (acc, mut rest) = rest.split_at_mut(3 * w);
+    let (best_b, mut rest) = rest.split_at_mut(w);
     let mut rings: [Option<Ring<'_>>; MAX_SURE_LEVELS] = Default::default();
     for ring in rings.iter_mut().take(levels) {
         let (e, more) = rest.split_at_mut(WIN * w);
@@ -427,6 +366,8 @@ fn run_levels<S: FloatElement, const AVX2: bool>(
         *ring = Some(Ring { e, s });
         rest = more;
     }
+    // The row accumulator (reconstruction only; 3 w words past the rings).
+    let acc = rest;
     let y1 = y0 + out.height();
     let last = &images[levels];
     let mut filled = y0.saturating_sub(r);
@@ -440,23 +381,32 @@ fn run_levels<S: FloatElement, const AVX2: bool>(
             }
             filled += 1;
         }
-        acc.fill(0.0);
+        if into == Sink::Reconstruct {
+            acc[..3 * w].fill(0.0);
+        }
         for (l, ring) in rings.iter().take(levels).enumerate() {
             let Some(ring) = ring else { continue };
             ring.vertical(lo, hi, se, ss);
             let (cur, next) = (&images[l], &images[l + 1]);
             let (a, b): ([&[S]; 3], [&[S]; 3]) =
                 (core::array::from_fn(|c| &cur.row(c, y)[..w]), core::array::from_fn(|c| &next.row(c, y)[..w]));
-            let (a0, rest) = acc.split_at_mut(w);
-            let (a1, a2) = rest.split_at_mut(w);
-            let mut o = [a0, a1, a2];
+            let mut o = match into {
+                Sink::Add => out.plane_rows_mut::<3>(y - y0),
+                Sink::Reconstruct => {
+                    let (a0, rest) = acc.split_at_mut(w);
+                    let (a1, a2) = rest.split_at_mut(w);
+                    [a0, a1, &mut a2[..w]]
+                }
+            };
             select_update::<S, AVX2>(candidates, (se, ss), &a, &b, &mut o, best_r, best_b);
         }
-        let mut o = out.plane_rows_mut::<3>(y - y0);
-        for (c, oc) in o.iter_mut().enumerate() {
-            let (base, add) = (&last.row(c, y)[..w], &acc[c * w..(c + 1) * w]);
-            for x in 0..w {
-                oc[x] = base[x].to_f32() + add[x];
+        if into == Sink::Reconstruct {
+            let mut o = out.plane_rows_mut::<3>(y - y0);
+            for (c, oc) in o.iter_mut().enumerate() {
+                let (base, add) = (&last.row(c, y)[..w], &acc[c * w..(c + 1) * w]);
+                for x in 0..w {
+                    oc[x] = base[x].to_f32() + add[x];
+                }
             }
         }
     }
