@@ -113,6 +113,23 @@ fn atrous_simd_matches_scalar_at_every_width() {
     }
 }
 
+/// Rows wider than one strip of the SIMD step (a packed sub-row holds 1376
+/// columns at level 0, 1320 at level 4, 872 at level 7): the strips, of
+/// equal width, each weigh their own halo and must join without a seam.
+#[test]
+fn atrous_simd_matches_scalar_across_strips() {
+    for isa in simd_isas() {
+        for (level, w, h) in [(0, 1377, 4), (0, 2900, 3), (4, 1400, 34), (7, 881, 3)] {
+            let (a, _) = run_step(Isa::Scalar, level, 2, false, Geo::Plane, w, h, w as u64);
+            let (b, _) = run_step(isa, level, 2, false, Geo::Plane, w, h, w as u64);
+            assert_close32(&format!("atrous {isa:?} w={w} level {level}"), &b, &a, 1e-5, 1e-5);
+            let (a, _) = run_step(Isa::Scalar, level, 1, true, Geo::Depth, w, h, w as u64 + 1);
+            let (b, _) = run_step(isa, level, 1, true, Geo::Depth, w, h, w as u64 + 1);
+            assert_close32(&format!("atrous var {isa:?} w={w} level {level}"), &b, &a, 1e-5, 1e-5);
+        }
+    }
+}
+
 /// The step over f16 storage (the masked edge loads and the partial last
 /// chunk convert through a small buffer there): SIMD against scalar at every
 /// width, to within one f16 rounding of the output.
