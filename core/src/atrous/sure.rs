@@ -16,6 +16,8 @@ use crate::Isa;
 
 /// Rows of the window.
 const WIN: usize = 2 * SURE_RADIUS + 1;
+// The one-pass window sums below name the five rows.
+const _: () = assert!(WIN == 5);
 
 /// Scratch words [`sure_shrink`] needs for images `width` wide.
 pub fn sure_scratch_len(width: usize) -> usize {
@@ -197,23 +199,24 @@ fn terms<S: FloatElement>(
     s: &mut [f32],
 ) {
     let w = e.len();
-    e.fill(0.0);
-    s.fill(0.0);
-    for c in 0..3 {
+    // One pass per sum, the channels added in order from 0.0 (as `+=` into
+    // a zeroed row would).
+    let sq = |c: usize| {
         let (a, b) = (&cur.row(c, y)[..w], &next.row(c, y)[..w]);
-        for x in 0..w {
+        move |x: usize| {
             let d = a[x].to_f32() - b[x].to_f32();
-            e[x] += d * d;
+            d * d
         }
+    };
+    let (d0, d1, d2) = (sq(0), sq(1), sq(2));
+    for x in 0..w {
+        e[x] = ((0.0 + d0(x)) + d1(x)) + d2(x);
     }
     match source {
         SureSource::Pair => {
-            for c in 3..6 {
-                let (a, b) = (&cur.row(c, y)[..w], &next.row(c, y)[..w]);
-                for x in 0..w {
-                    let d = a[x].to_f32() - b[x].to_f32();
-                    s[x] += d * d;
-                }
+            let (d3, d4, d5) = (sq(3), sq(4), sq(5));
+            for x in 0..w {
+                s[x] = ((0.0 + d3(x)) + d4(x)) + d5(x);
             }
         }
         SureSource::Single => {
@@ -284,6 +287,22 @@ impl Ring<'_> {
     #[inline(always)]
     fn vertical(&self, lo: usize, hi: usize, se: &mut [f32], ss: &mut [f32]) {
         let w = se.len();
+        if hi - lo == WIN {
+            // A whole window (every row but the first and last two): one
+            // pass, the rows added in the same order as below.
+            fn row(v: &[f32], lo: usize, i: usize, w: usize) -> &[f32] {
+                let slot = (lo + i) % WIN;
+                &v[slot * w..(slot + 1) * w]
+            }
+            let row = |v, i| row(v, lo, i, w);
+            let (e0, e1, e2, e3, e4) = (row(self.e, 0), row(self.e, 1), row(self.e, 2), row(self.e, 3), row(self.e, 4));
+            let (s0, s1, s2, s3, s4) = (row(self.s, 0), row(self.s, 1), row(self.s, 2), row(self.s, 3), row(self.s, 4));
+            for x in 0..w {
+                se[x] = ((((0.0 + e0[x]) + e1[x]) + e2[x]) + e3[x]) + e4[x];
+                ss[x] = ((((0.0 + s0[x]) + s1[x]) + s2[x]) + s3[x]) + s4[x];
+            }
+            return;
+        }
         se.fill(0.0);
         ss.fill(0.0);
         for q in lo..hi {
