@@ -1,7 +1,8 @@
 //! AVX2 + FMA row loops and 8-pixel paths of the softmax operators. Each loop
 //! does the same IEEE operations in the same order as [`super::scalar`]; only
 //! `exp` differs (FMA in its reduction and polynomial). Tails shorter than
-//! eight lanes run the scalar code.
+//! eight lanes run the scalar code, except in the box-sum path's carried
+//! rows (a lane-masked chunk: that row's exp is the vector one throughout).
 
 use core::arch::x86_64::*;
 
@@ -175,9 +176,47 @@ fn forward_row<S: FloatElement>(
     for u in (0..u0).chain(u1..len) {
         zero_col(a, p, u);
     }
+    // The vector loop, with the channel count and the block start as
+    // constants (no test or pointer reload per chunk).
+    let u = match (rad.len(), p_prev) {
+        (1, None) => forward_chunks::<S, 1, false>(l, rad, shift, u0, u1, a, None, p),
+        (1, Some(pp)) => forward_chunks::<S, 1, true>(l, rad, shift, u0, u1, a, Some(pp), p),
+        (3, None) => forward_chunks::<S, 3, false>(l, rad, shift, u0, u1, a, None, p),
+        (3, Some(pp)) => forward_chunks::<S, 3, true>(l, rad, shift, u0, u1, a, Some(pp), p),
+        (_, pp) => forward_chunks::<S, 0, false>(l, rad, shift, u0, u1, a, pp, p),
+    };
+    debug_assert_eq!(u, u1);
+}
+
+/// The columns `u0 .. u1` of [`forward_row`], eight at a time and the last
+/// few under a lane mask; returns `u1`. `NC` radiance channels and `PREV` (a
+/// previous prefix row) when `NC` is not 0, else `rad.len()` and `p_prev`.
+#[inline]
+#[target_feature(enable = "avx2,fma,f16c")]
+#[allow(clippy::too_many_arguments)]
+fn forward_chunks<S: FloatElement, const NC: usize, const PREV: bool>(
+    l: &[S],
+    rad: &[&[S]],
+    shift: f32,
+    u0: usize,
+    u1: usize,
+    a: &mut [f32],
+    p_prev: Option<&[f32]>,
+    p: &mut [f32],
+) -> usize {
+    let nc = if NC > 0 { NC } else { rad.len() };
+    let np = 1 + nc;
+    let len = a.len() / np;
+    // (forward_row asserted every length.)
     let sh = _mm256_set1_ps(shift);
     let ap = a.as_mut_ptr();
     let pq = p.as_mut_ptr();
+    let pp = p_prev.map_or(core::ptr::null(), |v| v.as_ptr());
+    let has_prev = if NC > 0 { PREV } else { p_prev.is_some() };
+    let mut rp = [core::ptr::null::<S>(); MAX_CHANNELS];
+    for (r, src) in rp.iter_mut().zip(rad) {
+        *r = src.as_ptr();
+    }
     let mut u = u0;
     while u + 8 <= u1 {
         // SAFETY: u - u0 + 8 <= n for l and rad; q * len + u + 8 <= np * len for a, p, p_prev.
@@ -186,32 +225,38 @@ fn forward_row<S: FloatElement>(
             let put = |q: usize, val: __m256| {
                 let i = q * len + u;
                 _mm256_storeu_ps(ap.add(i), val);
-                let pv = match p_prev {
-                    Some(pp) => _mm256_add_ps(val, _mm256_loadu_ps(pp.as_ptr().add(i))),
-                    None => val,
-                };
+                let pv = if has_prev { _mm256_add_ps(val, _mm256_loadu_ps(pp.add(i))) } else { val };
                 _mm256_storeu_ps(pq.add(i), pv);
             };
             put(0, e);
-            for (c, r) in rad.iter().enumerate() {
-                put(1 + c, _mm256_mul_ps(e, load8(r.as_ptr().add(u - u0))));
+            for (c, r) in rp.iter().enumerate().take(nc) {
+                put(1 + c, _mm256_mul_ps(e, load8(r.add(u - u0))));
             }
         }
         u += 8;
     }
-    // Tail: the scalar formula.
-    for u in u..u1 {
-        let e = crate::math::scalar::exp(crate::softmax::clamp_logit(l[u - u0].to_f32()) - shift);
-        for q in 0..np {
-            let val = if q == 0 { e } else { e * rad[q - 1][u - u0].to_f32() };
-            let i = q * len + u;
-            a[i] = val;
-            p[i] = match p_prev {
-                Some(pp) => val + pp[i],
-                None => val,
+    if u < u1 {
+        // The last 1-7 columns under a lane mask (the vector exp, as the
+        // chunks before them).
+        let n = u1 - u;
+        // SAFETY: lanes below n lie inside l, rad, a, p and p_prev (as above).
+        unsafe {
+            use crate::simd::avx2::{load8_range, store8_first};
+            let e = exp(_mm256_sub_ps(clamp8(load8_range(l.as_ptr().add(u - u0), 0, n)), sh));
+            let put = |q: usize, val: __m256| {
+                let i = q * len + u;
+                store8_first::<f32>(ap.add(i), n, val);
+                let pv = if has_prev { _mm256_add_ps(val, load8_range(pp.add(i), 0, n)) } else { val };
+                store8_first::<f32>(pq.add(i), n, pv);
             };
+            put(0, e);
+            for (c, r) in rp.iter().enumerate().take(nc) {
+                put(1 + c, _mm256_mul_ps(e, load8_range(r.add(u - u0), 0, n)));
+            }
         }
+        u = u1;
     }
+    u
 }
 
 #[target_feature(enable = "avx2,fma")]
@@ -275,6 +320,8 @@ unsafe fn box8(v: *const f32, lv: *const f32, len: usize, k: usize, x: usize) ->
     acc.map_or(t, |a| _mm256_add_ps(a, t))
 }
 
+/// [`horizontal_accumulate_k`] with the window size as a constant for the
+/// odd sizes (the pieces of [`box8`] then need no test per chunk).
 #[target_feature(enable = "avx2,fma")]
 #[allow(clippy::too_many_arguments)]
 fn horizontal_accumulate(
@@ -287,6 +334,39 @@ fn horizontal_accumulate(
     den: &mut [f32],
     lv: &mut [f32],
 ) -> bool {
+    macro_rules! go {
+        ($k:literal) => {
+            horizontal_accumulate_k::<$k>(v, np, $k, alpha, acc, acc_plane, den, lv)
+        };
+    }
+    match k {
+        1 => go!(1),
+        3 => go!(3),
+        5 => go!(5),
+        7 => go!(7),
+        9 => go!(9),
+        11 => go!(11),
+        13 => go!(13),
+        15 => go!(15),
+        _ => horizontal_accumulate_k::<0>(v, np, k, alpha, acc, acc_plane, den, lv),
+    }
+}
+
+/// Window size `k` (`K` when not 0).
+#[inline]
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+fn horizontal_accumulate_k<const K: usize>(
+    v: &[f32],
+    np: usize,
+    k: usize,
+    alpha: &[f32],
+    acc: &mut [f32],
+    acc_plane: usize,
+    den: &mut [f32],
+    lv: &mut [f32],
+) -> bool {
+    let k = if K > 0 { K } else { k };
     let len = v.len() / np;
     let tw = alpha.len();
     assert!(tw + k - 1 <= len && den.len() >= tw && lv.len() >= 3 * np * len);
