@@ -217,46 +217,47 @@ fn forward_chunks<S: FloatElement, const NC: usize, const PREV: bool>(
     for (r, src) in rp.iter_mut().zip(rad) {
         *r = src.as_ptr();
     }
+    // Columns u .. u + n: whole chunks, then the last 1-7 columns with
+    // their loads and stores under a lane mask (the vector exp, as the
+    // chunks before them). One body, expanded for each so neither tests n.
+    // SAFETY (the loads and stores): lanes below n lie inside l and rad
+    // (u - u0 + n <= u1 - u0) and a, p, p_prev (q * len + u + n <= np * len).
+    macro_rules! chunk {
+        ($u:expr, $n:expr, $masked:literal) => {{
+            let (u, n) = ($u, $n);
+            unsafe {
+                use crate::simd::avx2::{load8_range, store8_first};
+                let ld = |p: *const S| if $masked { load8_range(p, 0, n) } else { load8(p) };
+                let ldf = |p: *const f32| if $masked { load8_range(p, 0, n) } else { _mm256_loadu_ps(p) };
+                let st = |p: *mut f32, v: __m256| {
+                    if $masked {
+                        store8_first::<f32>(p, n, v)
+                    } else {
+                        _mm256_storeu_ps(p, v)
+                    }
+                };
+                let e = exp(_mm256_sub_ps(clamp8(ld(l.as_ptr().add(u - u0))), sh));
+                let put = |q: usize, val: __m256| {
+                    let i = q * len + u;
+                    st(ap.add(i), val);
+                    st(pq.add(i), if has_prev { _mm256_add_ps(val, ldf(pp.add(i))) } else { val });
+                };
+                put(0, e);
+                for (c, r) in rp.iter().enumerate().take(nc) {
+                    put(1 + c, _mm256_mul_ps(e, ld(r.add(u - u0))));
+                }
+            }
+        }};
+    }
     let mut u = u0;
     while u + 8 <= u1 {
-        // SAFETY: u - u0 + 8 <= n for l and rad; q * len + u + 8 <= np * len for a, p, p_prev.
-        unsafe {
-            let e = exp(_mm256_sub_ps(clamp8(load8(l.as_ptr().add(u - u0))), sh));
-            let put = |q: usize, val: __m256| {
-                let i = q * len + u;
-                _mm256_storeu_ps(ap.add(i), val);
-                let pv = if has_prev { _mm256_add_ps(val, _mm256_loadu_ps(pp.add(i))) } else { val };
-                _mm256_storeu_ps(pq.add(i), pv);
-            };
-            put(0, e);
-            for (c, r) in rp.iter().enumerate().take(nc) {
-                put(1 + c, _mm256_mul_ps(e, load8(r.add(u - u0))));
-            }
-        }
+        chunk!(u, 8, false);
         u += 8;
     }
     if u < u1 {
-        // The last 1-7 columns under a lane mask (the vector exp, as the
-        // chunks before them).
-        let n = u1 - u;
-        // SAFETY: lanes below n lie inside l, rad, a, p and p_prev (as above).
-        unsafe {
-            use crate::simd::avx2::{load8_range, store8_first};
-            let e = exp(_mm256_sub_ps(clamp8(load8_range(l.as_ptr().add(u - u0), 0, n)), sh));
-            let put = |q: usize, val: __m256| {
-                let i = q * len + u;
-                store8_first::<f32>(ap.add(i), n, val);
-                let pv = if has_prev { _mm256_add_ps(val, load8_range(pp.add(i), 0, n)) } else { val };
-                store8_first::<f32>(pq.add(i), n, pv);
-            };
-            put(0, e);
-            for (c, r) in rp.iter().enumerate().take(nc) {
-                put(1 + c, _mm256_mul_ps(e, load8_range(r.add(u - u0), 0, n)));
-            }
-        }
-        u = u1;
+        chunk!(u, u1 - u, true);
     }
-    u
+    u1
 }
 
 #[target_feature(enable = "avx2,fma")]
