@@ -17,8 +17,10 @@ fn main() {
     normal[2 * plane..].fill(1.0);
     let position = values(3 * plane, 0.0, 0.001, 22);
     let groups = dim("G", 1);
-    let src = values(3 * groups * plane, 0.0, 1.0, 20);
-    let mut out = mcdenoise::aligned::Aligned::<f32>::zeroed(3 * groups * plane);
+    let pad = dim("PAD", 0);
+    let ps = plane + pad;
+    let src = values(3 * groups * ps, 0.0, 1.0, 20);
+    let mut out = mcdenoise::aligned::Aligned::<f32>::zeroed(3 * groups * ps);
     // Buffers on cache lines, as the host allocates them.
     let al = mcdenoise::aligned::Aligned::from_slice;
     let (src, noise, normal, position) = (al(&src), al(&noise), al(&normal), al(&position));
@@ -28,7 +30,7 @@ fn main() {
         position: (dim("NOGEO", 0) == 0).then(|| View::new(&position, 3, W, H).unwrap()),
         depth: None,
     };
-    let sv = View::new(&src, 3 * groups, W, H).unwrap();
+    let sv = View::with_strides(&src, 3 * groups, W, H, W, ps).unwrap();
     let isa = std::env::var("ISA").ok().and_then(|s| Isa::from_name(&s)).unwrap_or(Isa::detect());
     let reps: usize = std::env::args().nth(2).and_then(|v| v.parse().ok()).unwrap_or(1);
     // The fastest of the repetitions: this VM's noise only ever adds time.
@@ -36,7 +38,7 @@ fn main() {
     let mut scratch = vec![0.0f32; atrous::step_scratch_len::<F32>(level)];
     for _ in 0..reps {
         let t = std::time::Instant::now();
-        let mut dv = ViewMut::new(&mut out, 3 * groups, W, H).unwrap();
+        let mut dv = ViewMut::with_strides(&mut out, 3 * groups, W, H, W, ps).unwrap();
         let p = AtrousParams::default();
         atrous::step::<F32>(isa, level, groups, false, &p, &guides, &sv, &mut dv, 0, &mut scratch).unwrap();
         best = best.min(t.elapsed());
