@@ -23,8 +23,8 @@ use crate::precision::FloatElement;
 use crate::simd::avx2::{load8, load8_range, store8};
 use crate::view::{View, ViewMut};
 
-/// How far ahead (in elements) the kernel planes are prefetched.
-const PREFETCH: usize = 128;
+/// How far ahead (in bytes) the kernel planes are prefetched.
+const PF_BYTES: usize = 512;
 
 /// Scratch words of the AVX2 path: the scalar row accumulator, plus (f16)
 /// the ring of widened source rows.
@@ -238,11 +238,16 @@ unsafe fn chunk8<S: FloatElement, const K: usize, const N: usize, const V: usize
     let ky = part.ky;
     let kstride = kernel.plane_stride();
     let kp = kernel.ptr(0, y).wrapping_add(ky * K * kstride);
-    if x % 16 < 8 {
-        // Each kernel plane of the row is its own stream: fetch each one's
-        // line PREFETCH ahead.
+    // Each kernel plane of the row is its own stream: fetch each one's line
+    // PF_BYTES ahead, once per 64-byte line: by the chunk whose columns
+    // `x .. x + 8 V` hold a multiple of the line's values (16 f32, 32 f16).
+    // (Was `x % 16 < 8`, which the wide chunks, at 8 mod 16, never met.)
+    let line = 64 / core::mem::size_of::<S>();
+    if x % line == 0 || x % line + 8 * V > line {
         for j in 0..K {
-            _mm_prefetch::<_MM_HINT_T0>(kp.wrapping_add(j * kstride + x + PREFETCH) as *const i8);
+            _mm_prefetch::<_MM_HINT_T0>(
+                kp.wrapping_add(j * kstride + x + PF_BYTES / core::mem::size_of::<S>()) as *const i8
+            );
         }
     }
     // N channels times V vectors of independent FMA chains.
