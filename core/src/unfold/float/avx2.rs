@@ -123,30 +123,9 @@ pub(crate) unsafe fn run<S: FloatElement>(
                     to: dst_acc.as_mut_ptr(),
                     w,
                 };
-                let chunk = |x: usize, wide: bool, edge: bool, dst: &mut ViewMut<'_, S>| {
-                    // SAFETY: tap rows ky are inside; columns x - r .. x + 8 (16)
-                    // + r are inside, or (edge) the source loads are masked.
-                    unsafe { dispatch(k, n, wide, edge, &part, kernel, &srows, &srows_s, dst, y, yo, c0, x) }
-                };
-                // The first eight columns with masked taps, then sixteen
-                // pixels a step (two independent FMA chains per channel),
-                // then eight, then masked chunks to the row's end (the last
-                // one ending at w, overlapping the one before).
-                chunk(0, false, r > 0, dst);
-                let mut x = 8;
-                while x + 16 + r <= w {
-                    chunk(x, true, false, dst);
-                    x += 16;
-                }
-                while x + 8 + r <= w {
-                    chunk(x, false, false, dst);
-                    x += 8;
-                }
-                while x < w {
-                    let xc = x.min(w - 8);
-                    chunk(xc, false, true, dst);
-                    x = xc + 8;
-                }
+                // SAFETY: tap rows ky_lo .. ky_hi are inside; the row
+                // pointers cover every column the chunks read.
+                unsafe { dispatch(k, n, &part, kernel, &srows, &srows_s, dst, y, yo, c0) };
             }
             c0 += n;
         }
@@ -164,17 +143,17 @@ struct Part {
     w: usize,
 }
 
-/// [`chunk8`] for the run-time `k` and channel count `n`.
+/// [`tap_row`] for the run-time `k` and channel count `n` (one dispatch per
+/// tap row, not per chunk: the per-chunk match and pointer reloads were a
+/// fifth of the f16 frame's instructions).
 ///
 /// # Safety
-/// As for [`chunk8`].
+/// As for [`tap_row`].
 #[target_feature(enable = "avx2,fma,f16c")]
 #[allow(clippy::too_many_arguments)]
 unsafe fn dispatch<S: FloatElement>(
     k: usize,
     n: usize,
-    wide: bool,
-    edge: bool,
     part: &Part,
     kernel: &View<'_, S>,
     srows: &[[*const f32; 15]; 4],
@@ -183,24 +162,15 @@ unsafe fn dispatch<S: FloatElement>(
     y: usize,
     yo: usize,
     c0: usize,
-    x: usize,
 ) {
     macro_rules! go {
         ($($kk:literal),*) => {
-            match (k, n, wide, edge) {
+            match (k, n) {
                 $(
-                    ($kk, 1, false, false) => chunk8::<S, $kk, 1, 1, false>(part, kernel, srows, srows_s, dst, y, yo, c0, x),
-                    ($kk, 2, false, false) => chunk8::<S, $kk, 2, 1, false>(part, kernel, srows, srows_s, dst, y, yo, c0, x),
-                    ($kk, 3, false, false) => chunk8::<S, $kk, 3, 1, false>(part, kernel, srows, srows_s, dst, y, yo, c0, x),
-                    ($kk, _, false, false) => chunk8::<S, $kk, 4, 1, false>(part, kernel, srows, srows_s, dst, y, yo, c0, x),
-                    ($kk, 1, true, _) => chunk8::<S, $kk, 1, 2, false>(part, kernel, srows, srows_s, dst, y, yo, c0, x),
-                    ($kk, 2, true, _) => chunk8::<S, $kk, 2, 2, false>(part, kernel, srows, srows_s, dst, y, yo, c0, x),
-                    ($kk, 3, true, _) => chunk8::<S, $kk, 3, 2, false>(part, kernel, srows, srows_s, dst, y, yo, c0, x),
-                    ($kk, _, true, _) => chunk8::<S, $kk, 4, 2, false>(part, kernel, srows, srows_s, dst, y, yo, c0, x),
-                    ($kk, 1, false, true) => chunk8::<S, $kk, 1, 1, true>(part, kernel, srows, srows_s, dst, y, yo, c0, x),
-                    ($kk, 2, false, true) => chunk8::<S, $kk, 2, 1, true>(part, kernel, srows, srows_s, dst, y, yo, c0, x),
-                    ($kk, 3, false, true) => chunk8::<S, $kk, 3, 1, true>(part, kernel, srows, srows_s, dst, y, yo, c0, x),
-                    ($kk, _, false, true) => chunk8::<S, $kk, 4, 1, true>(part, kernel, srows, srows_s, dst, y, yo, c0, x),
+                    ($kk, 1) => tap_row::<S, $kk, 1>(part, kernel, srows, srows_s, dst, y, yo, c0),
+                    ($kk, 2) => tap_row::<S, $kk, 2>(part, kernel, srows, srows_s, dst, y, yo, c0),
+                    ($kk, 3) => tap_row::<S, $kk, 3>(part, kernel, srows, srows_s, dst, y, yo, c0),
+                    ($kk, _) => tap_row::<S, $kk, 4>(part, kernel, srows, srows_s, dst, y, yo, c0),
                 )*
                 _ => unreachable!("k is checked odd in 1..=15"),
             }
@@ -208,6 +178,51 @@ unsafe fn dispatch<S: FloatElement>(
     }
     // SAFETY: forwarded from the caller.
     unsafe { go!(1, 3, 5, 7, 9, 11, 13, 15) }
+}
+
+/// Tap row `part.ky` over a whole output row (`w >= 8`): the first eight
+/// columns with masked taps, then sixteen pixels a step (two independent
+/// FMA chains per channel), then eight, then masked chunks to the row's end
+/// (the last one ending at `w`, overlapping the one before).
+///
+/// # Safety
+/// As for [`chunk8`], for every chunk of the row.
+#[target_feature(enable = "avx2,fma,f16c")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn tap_row<S: FloatElement, const K: usize, const N: usize>(
+    part: &Part,
+    kernel: &View<'_, S>,
+    srows: &[[*const f32; 15]; 4],
+    srows_s: &[[*const S; 15]; 4],
+    dst: &mut ViewMut<'_, S>,
+    y: usize,
+    yo: usize,
+    c0: usize,
+) {
+    let (r, w) = (K / 2, part.w);
+    // SAFETY (every chunk): columns x - r .. x + 8 (16) + r are inside, or
+    // (EDGE) the source loads are masked.
+    unsafe {
+        if r > 0 {
+            chunk8::<S, K, N, 1, true>(part, kernel, srows, srows_s, dst, y, yo, c0, 0);
+        } else {
+            chunk8::<S, K, N, 1, false>(part, kernel, srows, srows_s, dst, y, yo, c0, 0);
+        }
+        let mut x = 8;
+        while x + 16 + r <= w {
+            chunk8::<S, K, N, 2, false>(part, kernel, srows, srows_s, dst, y, yo, c0, x);
+            x += 16;
+        }
+        while x + 8 + r <= w {
+            chunk8::<S, K, N, 1, false>(part, kernel, srows, srows_s, dst, y, yo, c0, x);
+            x += 8;
+        }
+        while x < w {
+            let xc = x.min(w - 8);
+            chunk8::<S, K, N, 1, true>(part, kernel, srows, srows_s, dst, y, yo, c0, xc);
+            x = xc + 8;
+        }
+    }
 }
 
 /// Tap row `part.ky` of `8 V` interior pixels from `x` of row `y`, channels
@@ -243,7 +258,7 @@ unsafe fn chunk8<S: FloatElement, const K: usize, const N: usize, const V: usize
     // `x .. x + 8 V` hold a multiple of the line's values (16 f32, 32 f16).
     // (Was `x % 16 < 8`, which the wide chunks, at 8 mod 16, never met.)
     let line = 64 / core::mem::size_of::<S>();
-    if x % line == 0 || x % line + 8 * V > line {
+    if x.is_multiple_of(line) || x % line + 8 * V > line {
         for j in 0..K {
             _mm_prefetch::<_MM_HINT_T0>(
                 kp.wrapping_add(j * kstride + x + PF_BYTES / core::mem::size_of::<S>()) as *const i8
