@@ -340,11 +340,11 @@ unsafe fn strips<S: FloatElement, const G: usize, const VAR: bool, const GEO: u8
             pack_upto(y);
             // SAFETY: as above.
             unsafe { weights_row::<GEO>(c, &rings, &packed, y, xs, xe) };
-            // SAFETY: as above.
             // Two groups go one after the other (the second with the
             // variance, when there is one), each through 15 input streams:
             // all six channels at once read 30 and ran the level ~1.5x the
             // time of one group at 9 % more instructions.
+            // SAFETY: as above.
             unsafe {
                 if G == 2 {
                     accumulate::<S, false, 3>(c, &rings, dst, y - y0, y, xs, xe, 0);
