@@ -50,18 +50,21 @@ fn bench_fused(c: &mut Criterion) {
         radiance: View::new(&rad, 3, W, H).unwrap(),
     };
     for isa in isas() {
-        for p in pools() {
-            let len = softmax::fused_scratch_len::<F32>(WindowPath::BoxSum, &sizes, 3, W);
-            let mut scratch = Scratch::new();
-            g.bench_function(BenchmarkId::new(format!("boxsum/{}", isa.name()), format!("{}t", p.threads())), |b| {
-                b.iter(|| {
-                    let dst = ViewMut::new(&mut out, 3, W, H).unwrap();
-                    p.bands(dst, 48, &mut scratch, len, |band, y0, s| {
-                        softmax::fused_filter::<F32>(isa, WindowPath::BoxSum, &inp, band, y0, s)
+        for (path, name) in [(WindowPath::BoxSum, "boxsum"), (WindowPath::Separable, "separable")] {
+            for p in pools() {
+                let len = softmax::fused_scratch_len::<F32>(path, &sizes, 3, W);
+                let mut scratch = Scratch::new();
+                let id = BenchmarkId::new(format!("{name}/{}", isa.name()), format!("{}t", p.threads()));
+                g.bench_function(id, |b| {
+                    b.iter(|| {
+                        let dst = ViewMut::new(&mut out, 3, W, H).unwrap();
+                        p.bands(dst, 48, &mut scratch, len, |band, y0, s| {
+                            softmax::fused_filter::<F32>(isa, path, &inp, band, y0, s)
+                        })
+                        .unwrap()
                     })
-                    .unwrap()
-                })
-            });
+                });
+            }
         }
     }
     g.throughput(Throughput::Bytes(((6 + 6 + 3 + 3 + 3) * PLANE * 4) as u64));
@@ -276,7 +279,13 @@ fn bench_misc(c: &mut Criterion) {
                     .unwrap()
             })
         });
-        for (k, path) in [(7, WindowPath::BoxSum), (13, WindowPath::BoxSum), (7, WindowPath::Direct)] {
+        for (k, path) in [
+            (7, WindowPath::BoxSum),
+            (13, WindowPath::BoxSum),
+            (7, WindowPath::Separable),
+            (13, WindowPath::Separable),
+            (7, WindowPath::Direct),
+        ] {
             let len = softmax::window_scratch_len::<F32>(path, k, 3, W);
             g.bench_function(BenchmarkId::new(format!("window{k}_{path:?}"), isa.name()), |b| {
                 b.iter(|| {

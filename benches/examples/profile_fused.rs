@@ -1,13 +1,17 @@
 //! The fused 6-kernel reconstruction (sizes 3..13, fusion, albedo) at
 //! 1280x720 on one thread, the fastest of N repetitions:
-//! `ISA=avx2 profile_fused [REPS] [PATH]` with PATH `boxsum` (default) or `direct`.
+//! `ISA=avx2 profile_fused [REPS] [PATH]` with PATH `boxsum` (default), `separable` or `direct`.
 use mcdenoise_benches::{values, H, W};
 use mcdenoise_core::softmax::{self, FusedInputs, WindowPath};
 use mcdenoise_core::{Isa, View, ViewMut, F32};
 
 fn main() {
     let plane = W * H;
-    let sizes = [3usize, 5, 7, 9, 11, 13];
+    // SIZES=a,b,... (six odd sizes) replaces 3..13, to separate per-size costs.
+    let sizes: Vec<usize> = std::env::var("SIZES")
+        .map(|s| s.split(',').map(|v| v.parse().expect("SIZES: odd sizes")).collect())
+        .unwrap_or_else(|_| vec![3, 5, 7, 9, 11, 13]);
+    assert_eq!(sizes.len(), 6, "SIZES: six sizes");
     let imp = values(6 * plane, -6.0, 6.0, 1);
     let fus = values(6 * plane, -3.0, 3.0, 2);
     let alb = values(3 * plane, 0.05, 1.0, 3);
@@ -24,6 +28,7 @@ fn main() {
     let reps: usize = std::env::args().nth(1).and_then(|v| v.parse().ok()).unwrap_or(5);
     let path = match std::env::args().nth(2).as_deref() {
         Some("direct") => WindowPath::Direct,
+        Some("separable") => WindowPath::Separable,
         _ => WindowPath::BoxSum,
     };
     let mut scratch = vec![0.0f32; softmax::fused_scratch_len::<F32>(path, &sizes, 3, W)];

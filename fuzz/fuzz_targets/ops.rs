@@ -121,7 +121,11 @@ fn run<P: HostPrecision>(c: &Case) {
             finite("unfold", &out);
         }
         1 | 2 => {
-            let path = if c.op % 8 == 1 { WindowPath::Direct } else { WindowPath::BoxSum };
+            let path = match (c.op % 8, c.seed % 2) {
+                (1, _) => WindowPath::Direct,
+                (_, 0) => WindowPath::BoxSum,
+                _ => WindowPath::Separable,
+            };
             let sizes: Vec<usize> = (0..m).map(|i| (k + 2 * i).min(15)).collect();
             let inp = FusedInputs {
                 sizes: &sizes,

@@ -69,7 +69,7 @@ proptest! {
         let rad = Img::random(3, w, h, 0.0, 4.0, seed ^ 2);
         let shifted = |img: &Img, d: f32| Img { data: img.data.iter().map(|v| v + d).collect(), ..img.clone() };
         for isa in isas_under_test() {
-            for path in [WindowPath::Direct, WindowPath::BoxSum] {
+            for path in [WindowPath::Direct, WindowPath::BoxSum, WindowPath::Separable] {
                 let run = |imp: &Img, fus: &Img| {
                     let inp = FusedInputs { sizes: &sizes, importance: imp.view(), fusion: Some(fus.view()), albedo: None, radiance: rad.view() };
                     let mut out = Img::filled(3, w, h, f32::NAN);
@@ -95,7 +95,7 @@ proptest! {
         let rad = Img::random(3, w, h, 0.0, 10.0, seed ^ 5);
         for isa in isas_under_test() {
             let mut outs = Vec::new();
-            for path in [WindowPath::Direct, WindowPath::BoxSum] {
+            for path in [WindowPath::Direct, WindowPath::BoxSum, WindowPath::Separable] {
                 let mut out = Img::filled(3, w, h, f32::NAN);
                 let mut scratch = vec![0.0; softmax::window_scratch_len::<F32>(path, k, 3, w)];
                 softmax::window_filter::<F32>(isa, path, k, &logits.view(), &rad.view(), &mut out.view_mut(), 0, &mut scratch).unwrap();
@@ -136,7 +136,7 @@ proptest! {
             let mut scratch = vec![0.0; unfold::scratch_len::<F32>(k, 3, w)];
             unfold::apply::<F32>(isa, k, &kern.view(), &src.view(), &mut out.view_mut(), &mut scratch).unwrap();
             assert_close(&format!("unfold {isa:?}"), &out.data, &want, 0.0, (k * k + 2) as f64 * f32::EPSILON as f64);
-            for path in [WindowPath::Direct, WindowPath::BoxSum] {
+            for path in [WindowPath::Direct, WindowPath::BoxSum, WindowPath::Separable] {
                 let mut scratch = vec![0.0; softmax::window_scratch_len::<F32>(path, k, 3, w)];
                 softmax::window_filter::<F32>(isa, path, k, &logits.view(), &src.view(), &mut out.view_mut(), 0, &mut scratch).unwrap();
                 assert_close(&format!("filter {isa:?} {path:?}"), &out.data, &want, 0.0, 4.0 * (k + 2) as f64 * f32::EPSILON as f64);

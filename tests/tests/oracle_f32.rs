@@ -44,7 +44,7 @@ proptest! {
         let rad = Img::random(c, w, h, 0.0, 10.0, seed ^ 2);
         let want = oracle::window_filter(k, &logits.to_f64(), &rad.to_f64(), c, w, h);
         for isa in isas_under_test() {
-            for path in [WindowPath::Direct, WindowPath::BoxSum] {
+            for path in [WindowPath::Direct, WindowPath::BoxSum, WindowPath::Separable] {
                 let mut out = Img::filled(c, w, h, f32::NAN);
                 let mut scratch = vec![0.0; softmax::window_scratch_len::<F32>(path, k, c, w)];
                 softmax::window_filter::<F32>(isa, path, k, &logits.view(), &rad.view(), &mut out.view_mut(), 0, &mut scratch).unwrap();
@@ -64,7 +64,7 @@ proptest! {
         let rad = Img::random(3, w, h, 0.0, 100.0, seed ^ 5);
         let want = oracle::fused(&sizes, &imp.to_f64(), Some(&fus.to_f64()), albedo.then(|| alb.to_f64()).as_deref(), &rad.to_f64(), 3, w, h);
         for isa in isas_under_test() {
-            for path in [WindowPath::Direct, WindowPath::BoxSum] {
+            for path in [WindowPath::Direct, WindowPath::BoxSum, WindowPath::Separable] {
                 let inp = FusedInputs { sizes: &sizes, importance: imp.view(), fusion: Some(fus.view()), albedo: albedo.then(|| alb.view()), radiance: rad.view() };
                 let mut out = Img::filled(3, w, h, f32::NAN);
                 let mut scratch = vec![0.0; softmax::fused_scratch_len::<F32>(path, &sizes, 3, w)];
@@ -177,7 +177,8 @@ fn bands_compose_to_the_whole_image() {
     let imp = Img::random(3, w, h, -8.0, 8.0, 1);
     let fus = Img::random(3, w, h, -3.0, 3.0, 2);
     let rad = Img::random(3, w, h, 0.0, 5.0, 3);
-    for isa in isas_under_test() {
+    for (isa, path) in isas_under_test().into_iter().flat_map(|i| [(i, WindowPath::BoxSum), (i, WindowPath::Separable)])
+    {
         let inp = FusedInputs {
             sizes: &sizes,
             importance: imp.view(),
@@ -185,19 +186,19 @@ fn bands_compose_to_the_whole_image() {
             albedo: None,
             radiance: rad.view(),
         };
-        let mut scratch = vec![0.0; softmax::fused_scratch_len::<F32>(WindowPath::BoxSum, &sizes, 3, w)];
+        let mut scratch = vec![0.0; softmax::fused_scratch_len::<F32>(path, &sizes, 3, w)];
         let mut whole = Img::zeros(3, w, h);
-        softmax::fused_filter::<F32>(isa, WindowPath::BoxSum, &inp, &mut whole.view_mut(), 0, &mut scratch).unwrap();
+        softmax::fused_filter::<F32>(isa, path, &inp, &mut whole.view_mut(), 0, &mut scratch).unwrap();
         let mut banded = Img::zeros(3, w, h);
         let mut rest = banded.view_mut();
         let mut y0 = 0;
         for band in [5usize, 1, 11, 12] {
             let (mut top, bottom) = rest.split_rows_at(band);
-            softmax::fused_filter::<F32>(isa, WindowPath::BoxSum, &inp, &mut top, y0, &mut scratch).unwrap();
+            softmax::fused_filter::<F32>(isa, path, &inp, &mut top, y0, &mut scratch).unwrap();
             y0 += band;
             rest = bottom;
         }
-        assert_eq!(whole.data, banded.data, "{isa:?}");
+        assert_eq!(whole.data, banded.data, "{isa:?} {path:?}");
     }
 }
 
@@ -232,7 +233,8 @@ fn fused_across_many_tiles_matches_oracle() {
     let alb = Img::random(3, w, h, 0.0, 1.0, 23);
     let rad = Img::random(3, w, h, 0.0, 20.0, 24);
     let want = oracle::fused(&sizes, &imp.to_f64(), Some(&fus.to_f64()), Some(&alb.to_f64()), &rad.to_f64(), 3, w, h);
-    for isa in isas_under_test() {
+    for (isa, path) in isas_under_test().into_iter().flat_map(|i| [(i, WindowPath::BoxSum), (i, WindowPath::Separable)])
+    {
         let inp = FusedInputs {
             sizes: &sizes,
             importance: imp.view(),
@@ -240,12 +242,12 @@ fn fused_across_many_tiles_matches_oracle() {
             albedo: Some(alb.view()),
             radiance: rad.view(),
         };
-        let mut scratch = vec![0.0; softmax::fused_scratch_len::<F32>(WindowPath::BoxSum, &sizes, 3, w)];
+        let mut scratch = vec![0.0; softmax::fused_scratch_len::<F32>(path, &sizes, 3, w)];
         let mut out = Img::filled(3, w, h, f32::NAN);
         let (mut top, mut bottom) = out.view_mut().split_rows_at(70);
-        softmax::fused_filter::<F32>(isa, WindowPath::BoxSum, &inp, &mut top, 0, &mut scratch).unwrap();
-        softmax::fused_filter::<F32>(isa, WindowPath::BoxSum, &inp, &mut bottom, 70, &mut scratch).unwrap();
-        assert_close(&format!("fused many tiles {isa:?}"), &out.data, &want, 1e-4, 3e-5);
+        softmax::fused_filter::<F32>(isa, path, &inp, &mut top, 0, &mut scratch).unwrap();
+        softmax::fused_filter::<F32>(isa, path, &inp, &mut bottom, 70, &mut scratch).unwrap();
+        assert_close(&format!("fused many tiles {isa:?} {path:?}"), &out.data, &want, 1e-4, 3e-5);
     }
 }
 
@@ -270,7 +272,8 @@ fn fused_box_path_with_logit_bands_90_nats_apart_matches_oracle() {
     let fus = Img::random(sizes.len(), w, h, -3.0, 3.0, 32);
     let rad = Img::random(3, w, h, 0.0, 50.0, 33);
     let want = oracle::fused(&sizes, &imp.to_f64(), Some(&fus.to_f64()), None, &rad.to_f64(), 3, w, h);
-    for isa in isas_under_test() {
+    for (isa, path) in isas_under_test().into_iter().flat_map(|i| [(i, WindowPath::BoxSum), (i, WindowPath::Separable)])
+    {
         let inp = FusedInputs {
             sizes: &sizes,
             importance: imp.view(),
@@ -278,9 +281,9 @@ fn fused_box_path_with_logit_bands_90_nats_apart_matches_oracle() {
             albedo: None,
             radiance: rad.view(),
         };
-        let mut scratch = vec![0.0; softmax::fused_scratch_len::<F32>(WindowPath::BoxSum, &sizes, 3, w)];
+        let mut scratch = vec![0.0; softmax::fused_scratch_len::<F32>(path, &sizes, 3, w)];
         let mut out = Img::filled(3, w, h, f32::NAN);
-        softmax::fused_filter::<F32>(isa, WindowPath::BoxSum, &inp, &mut out.view_mut(), 0, &mut scratch).unwrap();
-        assert_close(&format!("fused logit bands {isa:?}"), &out.data, &want, 1e-4, 3e-5);
+        softmax::fused_filter::<F32>(isa, path, &inp, &mut out.view_mut(), 0, &mut scratch).unwrap();
+        assert_close(&format!("fused logit bands {isa:?} {path:?}"), &out.data, &want, 1e-4, 3e-5);
     }
 }

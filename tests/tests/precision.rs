@@ -77,7 +77,7 @@ fn check_fused<P: HostPrecision>(w: usize, h: usize, m: usize, seed: u64) {
     let want =
         oracle::fused(&sizes, &seen::<P>(&is), Some(&seen::<P>(&fs)), Some(&seen::<P>(&als)), &seen::<P>(&rs), 3, w, h);
     for isa in isas_under_test() {
-        for path in [WindowPath::Direct, WindowPath::BoxSum] {
+        for path in [WindowPath::Direct, WindowPath::BoxSum, WindowPath::Separable] {
             let inp = FusedInputs {
                 sizes: &sizes,
                 importance: is.view(),

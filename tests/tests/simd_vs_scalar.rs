@@ -64,7 +64,7 @@ fn softmax_simd_matches_scalar() {
                 let fus = Img::random(6, w, h, -8.0, 8.0, h as u64);
                 let alb = Img::random(3, w, h, 0.0, 1.0, 3);
                 let rad = Img::random(3, w, h, 0.0, 50.0, 4);
-                for path in [WindowPath::Direct, WindowPath::BoxSum] {
+                for path in [WindowPath::Direct, WindowPath::BoxSum, WindowPath::Separable] {
                     let inp = FusedInputs {
                         sizes: &sizes,
                         importance: imp.view(),

@@ -118,7 +118,7 @@ fn matrix<P: HostPrecision>() {
                         }
                         m
                     });
-                    for path in [WindowPath::Direct, WindowPath::BoxSum] {
+                    for path in [WindowPath::Direct, WindowPath::BoxSum, WindowPath::Separable] {
                         for k in [3usize, 7] {
                             let mut o = outp(3, w, h);
                             let mut s = vec![0.0; softmax::window_scratch_len::<P>(path, k, 3, w)];
@@ -287,7 +287,7 @@ fn raw_non_finite_input_does_not_panic() {
         let rad = image(3, 13, 11, &|x, y| [f32::NAN, f32::INFINITY, 1.0][(x + y) % 3]);
         let lg = Img::random(1, 13, 11, -3.0, 3.0, 1);
         let mut o = Img::zeros(3, 13, 11);
-        for path in [WindowPath::Direct, WindowPath::BoxSum] {
+        for path in [WindowPath::Direct, WindowPath::BoxSum, WindowPath::Separable] {
             let mut s = vec![0.0; softmax::window_scratch_len::<F32>(path, 7, 3, 13)];
             softmax::window_filter::<F32>(isa, path, 7, &lg.view(), &rad.view(), &mut o.view_mut(), 0, &mut s).unwrap();
         }

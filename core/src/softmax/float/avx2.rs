@@ -7,7 +7,7 @@
 use core::arch::x86_64::*;
 
 use super::scalar::{self, box_at, ScalarOps};
-use super::Ops;
+use super::{Ops, SepOps, SEP_LS, SEP_SS};
 use crate::math::avx2::exp;
 use crate::precision::FloatElement;
 use crate::simd::avx2::{load8, store8};
@@ -69,9 +69,11 @@ fn add_off(a: &[f32], oa: usize, b: &[f32], ob: usize, out: &mut [f32], n: usize
     }
 }
 
+/// The fusion weights of eight pixels; `M` planes when not 0, else `f.channels()`.
+#[inline]
 #[target_feature(enable = "avx2,fma,f16c")]
-fn alphas8<S: FloatElement>(f: &View<'_, S>, y: usize, x: usize) -> [__m256; MAX_FUSED] {
-    let m = f.channels();
+fn alphas8<S: FloatElement, const M: usize>(f: &View<'_, S>, y: usize, x: usize) -> [__m256; MAX_FUSED] {
+    let m = if M > 0 { M } else { f.channels() };
     let mut l = [_mm256_setzero_ps(); MAX_FUSED];
     let mut mx = _mm256_set1_ps(f32::NEG_INFINITY);
     for i in 0..m {
@@ -93,11 +95,29 @@ fn alphas8<S: FloatElement>(f: &View<'_, S>, y: usize, x: usize) -> [__m256; MAX
 
 #[target_feature(enable = "avx2,fma,f16c")]
 fn alphas<S: FloatElement>(f: &View<'_, S>, y: usize, x0: usize, n: usize, out: &mut [f32], stride: usize) {
-    let m = f.channels();
-    assert!(x0 + n <= f.width() && n <= stride && (m == 0 || out.len() >= (m - 1) * stride + n));
+    match f.channels() {
+        // WSKP's six sizes: the plane loops unrolled.
+        6 => alphas_m::<S, 6>(f, y, x0, n, out, stride),
+        _ => alphas_m::<S, 0>(f, y, x0, n, out, stride),
+    }
+}
+
+/// [`alphas`] with `M` planes (0: `f.channels()`).
+#[inline]
+#[target_feature(enable = "avx2,fma,f16c")]
+fn alphas_m<S: FloatElement, const M: usize>(
+    f: &View<'_, S>,
+    y: usize,
+    x0: usize,
+    n: usize,
+    out: &mut [f32],
+    stride: usize,
+) {
+    let m = if M > 0 { M } else { f.channels() };
+    assert!(m == f.channels() && x0 + n <= f.width() && n <= stride && (m == 0 || out.len() >= (m - 1) * stride + n));
     let mut x = 0;
     while x + 8 <= n {
-        let a = alphas8(f, y, x0 + x);
+        let a = alphas8::<S, M>(f, y, x0 + x);
         for (i, v) in a.iter().enumerate().take(m) {
             // SAFETY: (i * stride + x + 8) <= (m - 1) * stride + n <= out.len().
             unsafe { _mm256_storeu_ps(out.as_mut_ptr().add(i * stride + x), *v) };
@@ -179,11 +199,11 @@ fn forward_row<S: FloatElement>(
     // The vector loop, with the channel count and the block start as
     // constants (no test or pointer reload per chunk).
     let u = match (rad.len(), p_prev) {
-        (1, None) => forward_chunks::<S, 1, false>(l, rad, shift, u0, u1, a, None, p),
-        (1, Some(pp)) => forward_chunks::<S, 1, true>(l, rad, shift, u0, u1, a, Some(pp), p),
-        (3, None) => forward_chunks::<S, 3, false>(l, rad, shift, u0, u1, a, None, p),
-        (3, Some(pp)) => forward_chunks::<S, 3, true>(l, rad, shift, u0, u1, a, Some(pp), p),
-        (_, pp) => forward_chunks::<S, 0, false>(l, rad, shift, u0, u1, a, pp, p),
+        (1, None) => forward_chunks::<S, 1, false, true>(l, rad, shift, u0, u1, a, None, p),
+        (1, Some(pp)) => forward_chunks::<S, 1, true, true>(l, rad, shift, u0, u1, a, Some(pp), p),
+        (3, None) => forward_chunks::<S, 3, false, true>(l, rad, shift, u0, u1, a, None, p),
+        (3, Some(pp)) => forward_chunks::<S, 3, true, true>(l, rad, shift, u0, u1, a, Some(pp), p),
+        (_, pp) => forward_chunks::<S, 0, false, true>(l, rad, shift, u0, u1, a, pp, p),
     };
     debug_assert_eq!(u, u1);
 }
@@ -191,10 +211,11 @@ fn forward_row<S: FloatElement>(
 /// The columns `u0 .. u1` of [`forward_row`], eight at a time and the last
 /// few under a lane mask; returns `u1`. `NC` radiance channels and `PREV` (a
 /// previous prefix row) when `NC` is not 0, else `rad.len()` and `p_prev`.
+/// Without `PFX` only `a` is written (the separable path's weight rows).
 #[inline]
 #[target_feature(enable = "avx2,fma,f16c")]
 #[allow(clippy::too_many_arguments)]
-fn forward_chunks<S: FloatElement, const NC: usize, const PREV: bool>(
+fn forward_chunks<S: FloatElement, const NC: usize, const PREV: bool, const PFX: bool>(
     l: &[S],
     rad: &[&[S]],
     shift: f32,
@@ -240,7 +261,9 @@ fn forward_chunks<S: FloatElement, const NC: usize, const PREV: bool>(
                 let put = |q: usize, val: __m256| {
                     let i = q * len + u;
                     st(ap.add(i), val);
-                    st(pq.add(i), if has_prev { _mm256_add_ps(val, ldf(pp.add(i))) } else { val });
+                    if PFX {
+                        st(pq.add(i), if has_prev { _mm256_add_ps(val, ldf(pp.add(i))) } else { val });
+                    }
                 };
                 put(0, e);
                 for (c, r) in rp.iter().enumerate().take(nc) {
@@ -425,6 +448,184 @@ fn horizontal_accumulate_k<const K: usize>(
     any_tiny
 }
 
+/// [`SepOps::weights_row`].
+#[target_feature(enable = "avx2,fma,f16c")]
+fn weights_row<S: FloatElement>(l: Option<&[S]>, rad: &[&[S]], shift: f32, u0: usize, u1: usize, w: &mut [f32]) {
+    let np = 1 + rad.len();
+    assert!(np <= 1 + MAX_CHANNELS && w.len() >= np * SEP_LS && u0 <= u1 && u1 <= SEP_LS);
+    let w = &mut w[..np * SEP_LS];
+    let Some(l) = l else {
+        w.fill(0.0);
+        return;
+    };
+    assert!(l.len() >= u1 - u0 && rad.iter().all(|r| r.len() >= u1 - u0));
+    for q in 0..np {
+        w[q * SEP_LS..q * SEP_LS + u0].fill(0.0);
+        w[q * SEP_LS + u1..(q + 1) * SEP_LS].fill(0.0);
+    }
+    let u = match rad.len() {
+        1 => forward_chunks::<S, 1, false, false>(l, rad, shift, u0, u1, w, None, &mut []),
+        3 => forward_chunks::<S, 3, false, false>(l, rad, shift, u0, u1, w, None, &mut []),
+        _ => forward_chunks::<S, 0, false, false>(l, rad, shift, u0, u1, w, None, &mut []),
+    };
+    debug_assert_eq!(u, u1);
+}
+
+/// [`SepOps::vertical_sum`] with the window size `K` as a constant (0: `k`).
+#[target_feature(enable = "avx2,fma")]
+fn vertical_sum_k<const K: usize>(ring: &[f32], k: usize, v: &mut [f32]) {
+    let k = if K > 0 { K } else { k };
+    let n = v.len();
+    assert!(k >= 1 && ring.len() >= (k - 1) * SEP_SS + n);
+    let (rp, vp) = (ring.as_ptr(), v.as_mut_ptr());
+    let mut i = 0;
+    while i + 8 <= n {
+        // SAFETY: slot * SEP_SS + i + 8 <= (k - 1) * SEP_SS + n <= ring.len() (asserted).
+        unsafe {
+            let mut s = _mm256_loadu_ps(rp.add(i));
+            for slot in 1..k {
+                s = _mm256_add_ps(s, _mm256_loadu_ps(rp.add(slot * SEP_SS + i)));
+            }
+            _mm256_storeu_ps(vp.add(i), s);
+        }
+        i += 8;
+    }
+    for i in i..n {
+        let mut s = ring[i];
+        for slot in 1..k {
+            s += ring[slot * SEP_SS + i];
+        }
+        v[i] = s;
+    }
+}
+
+/// Eight horizontal window sums `sum_{j < k} p[x + j]`, `j` ascending.
+///
+/// # Safety
+/// `p[.. 8 + k - 1]` must be readable.
+#[inline(always)]
+unsafe fn window8(p: *const f32, k: usize) -> __m256 {
+    // SAFETY: the caller's range.
+    unsafe {
+        let mut s = _mm256_loadu_ps(p);
+        for j in 1..k {
+            s = _mm256_add_ps(s, _mm256_loadu_ps(p.add(j)));
+        }
+        s
+    }
+}
+
+/// [`SepOps::horizontal_direct`] with `K` as a constant (0: `k`).
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+fn horizontal_direct_k<const K: usize, const NP: usize>(
+    v: &[f32],
+    np: usize,
+    k: usize,
+    alpha: &[f32],
+    acc: &mut [f32],
+    acc_plane: usize,
+    den: &mut [f32],
+) -> bool {
+    let k = if K > 0 { K } else { k };
+    let np = if NP > 0 { NP } else { np };
+    let tw = alpha.len();
+    assert!(np >= 2 && tw + k - 1 <= SEP_LS && v.len() >= np * SEP_LS && den.len() >= tw);
+    assert!(acc.len() >= (np - 2) * acc_plane + tw);
+    let tiny = _mm256_set1_ps(TINY_DENOMINATOR);
+    let mut all = 0xff;
+    let mut x = 0;
+    while x + 8 <= tw {
+        // SAFETY: q * SEP_LS + x + 8 + k - 1 <= np * SEP_LS <= v.len(); acc and
+        // den hold tw columns per plane (asserted).
+        unsafe {
+            let d = window8(v.as_ptr().add(x), k);
+            _mm256_storeu_ps(den.as_mut_ptr().add(x), d);
+            let ok = _mm256_cmp_ps::<_CMP_GE_OQ>(d, tiny);
+            all &= _mm256_movemask_ps(ok);
+            let inv = _mm256_div_ps(_mm256_loadu_ps(alpha.as_ptr().add(x)), d);
+            for q in 1..np {
+                let num = window8(v.as_ptr().add(q * SEP_LS + x), k);
+                let add = _mm256_and_ps(_mm256_mul_ps(num, inv), ok);
+                let dp = acc.as_mut_ptr().add((q - 1) * acc_plane + x);
+                _mm256_storeu_ps(dp, _mm256_add_ps(_mm256_loadu_ps(dp), add));
+            }
+        }
+        x += 8;
+    }
+    let window = |q: usize, x: usize| {
+        let row = &v[q * SEP_LS + x..q * SEP_LS + x + k];
+        row[1..].iter().fold(row[0], |s, &t| s + t)
+    };
+    let mut any_tiny = all != 0xff;
+    for x in x..tw {
+        let d = window(0, x);
+        den[x] = d;
+        if d >= TINY_DENOMINATOR {
+            let inv = alpha[x] / d;
+            for q in 1..np {
+                acc[(q - 1) * acc_plane + x] += window(q, x) * inv;
+            }
+        } else {
+            any_tiny = true;
+        }
+    }
+    any_tiny
+}
+
+impl SepOps<f32> for Avx2Ops {
+    fn weights_row<S: FloatElement>(
+        &self,
+        l: Option<&[S]>,
+        rad: &[&[S]],
+        shift: f32,
+        u0: usize,
+        u1: usize,
+        w: &mut [f32],
+    ) {
+        // SAFETY: Avx2Ops exists only when AVX2/FMA/F16C are supported.
+        unsafe { weights_row(l, rad, shift, u0, u1, w) }
+    }
+    fn vertical_sum(&self, ring: &[f32], k: usize, v: &mut [f32]) {
+        macro_rules! go {
+            ($($k:literal)*) => {
+                match k {
+                    // SAFETY: as above.
+                    $($k => unsafe { vertical_sum_k::<$k>(ring, k, v) },)*
+                    // SAFETY: as above.
+                    _ => unsafe { vertical_sum_k::<0>(ring, k, v) },
+                }
+            };
+        }
+        go!(1 3 5 7 9 11 13 15)
+    }
+    fn horizontal_direct(
+        &self,
+        v: &[f32],
+        np: usize,
+        k: usize,
+        alpha: &[f32],
+        acc: &mut [f32],
+        acc_plane: usize,
+        den: &mut [f32],
+    ) -> bool {
+        // The window size and, for one or three channels, the plane count as constants.
+        macro_rules! go {
+            ($($k:literal)*) => {
+                match (k, np) {
+                    // SAFETY: as above.
+                    $(($k, 4) => unsafe { horizontal_direct_k::<$k, 4>(v, np, k, alpha, acc, acc_plane, den) },)*
+                    // SAFETY: as above.
+                    $(($k, 2) => unsafe { horizontal_direct_k::<$k, 2>(v, np, k, alpha, acc, acc_plane, den) },)*
+                    // SAFETY: as above.
+                    _ => unsafe { horizontal_direct_k::<0, 0>(v, np, k, alpha, acc, acc_plane, den) },
+                }
+            };
+        }
+        go!(1 3 5 7 9 11 13 15)
+    }
+}
+
 impl Ops<f32> for Avx2Ops {
     fn row_max<S: FloatElement>(&self, row: &[S]) -> f32 {
         // SAFETY: Avx2Ops exists only when AVX2/FMA/F16C are supported.
@@ -499,7 +700,7 @@ pub(crate) unsafe fn direct<S: FloatElement>(inp: &FusedInputs<'_, S>, dst: &mut
                 continue;
             }
             let alpha = match &inp.fusion {
-                Some(f) => alphas8(f, y, x),
+                Some(f) => alphas8::<S, 0>(f, y, x),
                 None => [_mm256_set1_ps(1.0); MAX_FUSED],
             };
             let mut acc = [_mm256_setzero_ps(); MAX_CHANNELS];

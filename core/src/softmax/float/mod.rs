@@ -24,6 +24,42 @@ pub(crate) const TILE_H: usize = 48;
 /// Output columns per tile of the box-sum path.
 pub(crate) const TILE_W: usize = 256;
 
+/// Output columns per sub-tile of the separable path. The whole grid cell:
+/// 64 and 128 (a ring that fits L1) measured slower, their halos cost more.
+pub(crate) const SEP_TW: usize = TILE_W;
+/// Plane stride of the separable path's rows: a sub-tile and its widest
+/// halo (`MAX_WINDOW - 1`), rounded up to a multiple of 8.
+pub(crate) const SEP_LS: usize = SEP_TW + 16;
+/// Slot stride of the separable path's ring (the weight plane and up to
+/// `MAX_CHANNELS` weighted channels).
+pub(crate) const SEP_SS: usize = (1 + MAX_CHANNELS) * SEP_LS;
+
+/// Row loops of the separable path. Rows are plane-interleaved with plane
+/// stride [`SEP_LS`]: the weight, then one weighted channel each.
+pub(crate) trait SepOps<A: Real> {
+    /// One weight row: `e = exp(clamp(l) - shift)` and `e * r_c` at columns
+    /// `u0 .. u1`, 0 at every other column below `SEP_LS` (and everywhere
+    /// when `l` is `None`). `w` holds `1 + rad.len()` planes.
+    fn weights_row<S: FloatElement>(&self, l: Option<&[S]>, rad: &[&[S]], shift: A, u0: usize, u1: usize, w: &mut [A]);
+    /// `v[i] = sum_{s < k} ring[s * SEP_SS + i]`, `s` ascending, for `i < v.len()`.
+    fn vertical_sum(&self, ring: &[A], k: usize, v: &mut [A]);
+    /// Window sums `sum_{j < k} v[q * SEP_LS + x + j]` (`j` ascending) for
+    /// the `tw = alpha.len()` output columns, then for every column with
+    /// `den >= TINY`: `acc_c += num_c * (alpha / den)`. Writes `den` per
+    /// column; returns whether any column had `den < TINY`.
+    #[allow(clippy::too_many_arguments)]
+    fn horizontal_direct(
+        &self,
+        v: &[A],
+        np: usize,
+        k: usize,
+        alpha: &[A],
+        acc: &mut [A],
+        acc_plane: usize,
+        den: &mut [A],
+    ) -> bool;
+}
+
 /// Row loops of the box-sum path. Rows of the carried block are stored
 /// plane-interleaved: row `t` is `np` consecutive planes of `len` values
 /// (`np = 1 + channels`: the weight sum, then one weighted channel each).
@@ -102,6 +138,14 @@ pub(crate) fn boxsum_scratch_len(sizes: &[usize], channels: usize, width: usize)
     channels * th * tw + m * th * tw + 2 * np * t * l + np * l + tw + 3 * np * l
 }
 
+/// Scratch words of the separable path.
+pub(crate) fn separable_scratch_len(sizes: &[usize], channels: usize, width: usize) -> usize {
+    let kmax = sizes.iter().copied().max().unwrap_or(1);
+    let tw = width.min(SEP_TW);
+    let np = 1 + channels;
+    (channels + sizes.len()) * TILE_H * tw + kmax * SEP_SS + np * SEP_LS + tw
+}
+
 pub(crate) fn fused<S: FloatElement>(
     isa: Isa,
     path: WindowPath,
@@ -126,6 +170,12 @@ pub(crate) fn fused<S: FloatElement>(
             let ops = unsafe { avx512::Avx512Ops::new() };
             boxsum(&ops, inp, dst, y0, scratch)
         }
+        #[cfg(target_arch = "x86_64")]
+        (Isa::Avx2 | Isa::Avx512, WindowPath::Separable) => {
+            // SAFETY: the caller checked support (AVX-512 here implies AVX2, FMA and F16C).
+            let ops = unsafe { avx2::Avx2Ops::new() };
+            separable(&ops, inp, dst, y0, scratch)
+        }
         _ => fused_scalar::<S, f32>(path, inp, dst, y0, scratch),
     }
 }
@@ -141,6 +191,9 @@ pub(crate) fn fused_scalar<S: FloatElement, A: Real>(
     match path {
         WindowPath::Direct => scalar::direct::<S, A>(inp, dst, y0),
         WindowPath::BoxSum => boxsum(&scalar::ScalarOps::<A>::new(), inp, dst, y0, bytemuck::cast_slice_mut(scratch)),
+        WindowPath::Separable => {
+            separable(&scalar::ScalarOps::<A>::new(), inp, dst, y0, bytemuck::cast_slice_mut(scratch))
+        }
     }
 }
 
@@ -374,6 +427,156 @@ fn tile<S: FloatElement, A: Real, O: Ops<A>>(
             let ot = t - first_out; // output row within the tile
             let arow = &alpha[(i * th + ot) * tw..(i * th + ot + 1) * tw];
             let any_tiny = o.horizontal_accumulate(&v_buf[..row], np, k, arow, &mut acc[ot * tw..], th * tw, den, lv);
+            if any_tiny {
+                for x in 0..tw {
+                    if den[x] >= A::TINY {
+                        continue;
+                    }
+                    let mut rr = [A::ZERO; MAX_CHANNELS];
+                    direct_pixel(k, imp, i, rad, ytop + ot, tx + x, &mut rr);
+                    for c in 0..ch {
+                        acc[(c * th + ot) * tw + x] += rr[c] * arow[x];
+                    }
+                }
+            }
+        }
+    }
+    for t in 0..th {
+        for c in 0..ch {
+            let a = &acc[(c * th + t) * tw..(c * th + t + 1) * tw];
+            let alb = inp.albedo.as_ref().map(|v| &v.row(c, ytop + t)[tx..tx + tw]);
+            o.finish(a, alb, &mut dst.row_mut(c, ytop - y0 + t)[tx..tx + tw]);
+        }
+    }
+}
+
+/// The separable path: the box-sum path's grid cells and shifts (so the two
+/// differ only in the order of their additions), each cell in sub-tiles of
+/// [`SEP_TW`] columns.
+fn separable<S: FloatElement, A: Real, O: Ops<A> + SepOps<A>>(
+    o: &O,
+    inp: &FusedInputs<'_, S>,
+    dst: &mut ViewMut<'_, S>,
+    y0: usize,
+    scratch: &mut [A],
+) {
+    let imp = &inp.importance;
+    let (w, h) = (inp.radiance.width(), inp.radiance.height());
+    let y_end = y0 + dst.height();
+    let mut shifts = [A::ZERO; MAX_FUSED];
+    let mut y = y0;
+    while y < y_end {
+        let cell = y - y % TILE_H;
+        let rows = (cell + TILE_H).min(y_end) - y;
+        let mut cx = 0;
+        while cx < w {
+            let cw = TILE_W.min(w - cx);
+            // The shift of each size: the largest (clamped) logit of the cell and its halo.
+            for (i, &k) in inp.sizes.iter().enumerate() {
+                let r = k / 2;
+                let (xs, xe) = (cx.saturating_sub(r), (cx + cw + r).min(w));
+                let mut shift = f32::NEG_INFINITY;
+                let (sy0, sy1) = (cell.saturating_sub(r), (cell + TILE_H + r).min(h));
+                for yy in sy0..sy1 {
+                    if yy + 4 < sy1 {
+                        o.prefetch(&imp.row(i, yy + 4)[xs..xe]);
+                    }
+                    shift = shift.max(o.row_max(&imp.row(i, yy)[xs..xe]));
+                }
+                shifts[i] = A::of(clamp_logit(shift));
+            }
+            let mut tx = cx;
+            while tx < cx + cw {
+                let tw = SEP_TW.min(cx + cw - tx);
+                sep_tile(o, inp, dst, y0, y, rows, tx, tw, &shifts, scratch);
+                tx += tw;
+            }
+            cx += cw;
+        }
+        y += rows;
+    }
+}
+
+/// Output rows `ytop .. ytop + th`, columns `tx .. tx + tw` of the separable
+/// path. Per size: the weight rows `ytop - r ..= ytop + th - 1 + r` go into a
+/// ring of `k` slots (slot = image row mod `k`); once a window's `k` rows are
+/// in, their vertical sum is summed horizontally straight into the
+/// accumulators.
+#[allow(clippy::too_many_arguments)]
+fn sep_tile<S: FloatElement, A: Real, O: Ops<A> + SepOps<A>>(
+    o: &O,
+    inp: &FusedInputs<'_, S>,
+    dst: &mut ViewMut<'_, S>,
+    y0: usize,
+    ytop: usize,
+    th: usize,
+    tx: usize,
+    tw: usize,
+    shifts: &[A; MAX_FUSED],
+    scratch: &mut [A],
+) {
+    let rad = &inp.radiance;
+    let imp = &inp.importance;
+    let (w, h, ch) = (rad.width(), rad.height(), rad.channels());
+    let m = inp.sizes.len();
+    let kmax = inp.sizes.iter().copied().max().unwrap_or(1);
+    let np = 1 + ch;
+    let (acc, rest) = scratch.split_at_mut(ch * th * tw);
+    let (alpha, rest) = rest.split_at_mut(m * th * tw);
+    let (ring, rest) = rest.split_at_mut(kmax * SEP_SS);
+    let (v, rest) = rest.split_at_mut(np * SEP_LS);
+    let den = &mut rest[..tw];
+    acc.fill(A::ZERO);
+    match &inp.fusion {
+        Some(f) => {
+            for t in 0..th {
+                if t + 2 < th {
+                    for q in 0..m {
+                        o.prefetch(&f.row(q, ytop + t + 2)[tx..tx + tw]);
+                    }
+                }
+                o.alphas(f, ytop + t, tx, tw, &mut alpha[t * tw..], th * tw);
+            }
+        }
+        None => alpha[..th * tw].fill(A::ONE),
+    }
+    let mut rads: [&[S]; MAX_CHANNELS] = [&[]; MAX_CHANNELS];
+    for (i, &k) in inp.sizes.iter().enumerate() {
+        let r = k / 2;
+        let ri = r as isize;
+        let l = tw + 2 * r; // columns carried for this size
+        let xbase = tx as isize - ri;
+        let u0 = (-xbase).max(0) as usize;
+        let u1 = ((w as isize - xbase).min(l as isize)) as usize;
+        let xs = (xbase + u0 as isize) as usize; // image column of carried column u0
+        let xe = xs + (u1 - u0);
+        for t in 0..th + 2 * r {
+            let yy = ytop as isize - ri + t as isize;
+            let ahead = yy + 2;
+            if ahead >= 0 && (ahead as usize) < h {
+                o.prefetch(&imp.row(i, ahead as usize)[xs..xe]);
+                for c in 0..ch {
+                    o.prefetch(&rad.row(c, ahead as usize)[xs..xe]);
+                }
+            }
+            let inside = yy >= 0 && (yy as usize) < h;
+            let lrow = inside.then(|| &imp.row(i, yy as usize)[xs..xe]);
+            if inside {
+                for (c, rr) in rads.iter_mut().enumerate().take(ch) {
+                    *rr = &rad.row(c, yy as usize)[xs..xe];
+                }
+            }
+            let slot = yy.rem_euclid(k as isize) as usize;
+            let wrow = &mut ring[slot * SEP_SS..slot * SEP_SS + np * SEP_LS];
+            o.weights_row(lrow, &rads[..ch], shifts[i], u0, u1, wrow);
+            if t < 2 * r {
+                continue;
+            }
+            // Rows yy - 2r ..= yy are in: the windows of output row yy - r.
+            let ot = t - 2 * r;
+            o.vertical_sum(&ring[..(k - 1) * SEP_SS + np * SEP_LS], k, v);
+            let arow = &alpha[(i * th + ot) * tw..(i * th + ot + 1) * tw];
+            let any_tiny = o.horizontal_direct(v, np, k, arow, &mut acc[ot * tw..], th * tw, den);
             if any_tiny {
                 for x in 0..tw {
                     if den[x] >= A::TINY {

@@ -4,7 +4,7 @@
 
 use core::marker::PhantomData;
 
-use super::{alpha_pixel, direct_pixel, Ops};
+use super::{alpha_pixel, direct_pixel, Ops, SepOps, SEP_LS, SEP_SS};
 use crate::precision::FloatElement;
 use crate::real::Real;
 use crate::softmax::{clamp_logit, FusedInputs, MAX_CHANNELS, MAX_FUSED};
@@ -173,6 +173,65 @@ impl<A: Real> Ops<A> for ScalarOps<A> {
                 }
             }
         }
+    }
+}
+
+impl<A: Real> SepOps<A> for ScalarOps<A> {
+    fn weights_row<S: FloatElement>(&self, l: Option<&[S]>, rad: &[&[S]], shift: A, u0: usize, u1: usize, w: &mut [A]) {
+        let np = 1 + rad.len();
+        for u in 0..SEP_LS {
+            let mut vals = [A::ZERO; 1 + MAX_CHANNELS];
+            if let Some(l) = l.filter(|_| u >= u0 && u < u1) {
+                let e = (A::of(clamp_logit(l[u - u0].to_f32())) - shift).exp();
+                vals[0] = e;
+                for (c, r) in rad.iter().enumerate() {
+                    vals[1 + c] = e * A::of(r[u - u0].to_f32());
+                }
+            }
+            for q in 0..np {
+                w[q * SEP_LS + u] = vals[q];
+            }
+        }
+    }
+
+    fn vertical_sum(&self, ring: &[A], k: usize, v: &mut [A]) {
+        for (i, o) in v.iter_mut().enumerate() {
+            let mut s = ring[i];
+            for slot in 1..k {
+                s += ring[slot * SEP_SS + i];
+            }
+            *o = s;
+        }
+    }
+
+    fn horizontal_direct(
+        &self,
+        v: &[A],
+        np: usize,
+        k: usize,
+        alpha: &[A],
+        acc: &mut [A],
+        acc_plane: usize,
+        den: &mut [A],
+    ) -> bool {
+        let window = |q: usize, x: usize| {
+            let row = &v[q * SEP_LS + x..q * SEP_LS + x + k];
+            row[1..].iter().fold(row[0], |s, &t| s + t)
+        };
+        let mut any_tiny = false;
+        for x in 0..alpha.len() {
+            let d = window(0, x);
+            den[x] = d;
+            if d >= A::TINY {
+                let inv = alpha[x] / d;
+                for q in 1..np {
+                    acc[(q - 1) * acc_plane + x] += window(q, x) * inv;
+                }
+            } else {
+                any_tiny = true;
+            }
+        }
+        any_tiny
     }
 }
 
