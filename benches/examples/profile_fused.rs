@@ -1,11 +1,15 @@
 //! The fused 6-kernel reconstruction (sizes 3..13, fusion, albedo) at
 //! 1280x720 on one thread, the fastest of N repetitions:
 //! `ISA=avx2 profile_fused [REPS] [PATH]` with PATH `boxsum` (default), `separable` or `direct`.
-use mcdenoise_benches::{values, H, W};
+use mcdenoise_benches::values;
 use mcdenoise_core::softmax::{self, FusedInputs, WindowPath};
 use mcdenoise_core::{Isa, View, ViewMut, F32};
 
+#[allow(non_snake_case)]
 fn main() {
+    // W / H override the 1280x720 frame (a small frame shows the in-cache speed).
+    let dim = |v: &str, d: usize| std::env::var(v).ok().and_then(|s| s.parse().ok()).unwrap_or(d);
+    let (W, H) = (dim("W", mcdenoise_benches::W), dim("H", mcdenoise_benches::H));
     let plane = W * H;
     // SIZES=a,b,... (six odd sizes) replaces 3..13, to separate per-size costs.
     let sizes: Vec<usize> = std::env::var("SIZES")
