@@ -31,10 +31,11 @@ use crate::par::{Pool, Scratch};
 use crate::precision::{frac_for_max, HostPrecision, Kind, Planes, PrecisionKind};
 
 /// The operators measured.
-pub const OPS: [&str; 14] = [
+pub const OPS: [&str; 15] = [
     "apply7x7",
     "window7",
     "fused6",
+    "fused6-sep",
     "kernels7",
     "softmax6",
     "avgpool",
@@ -207,7 +208,7 @@ fn oracle_of(op: &str, i: &Inputs, pool: &Pool) -> Vec<f64> {
     match op {
         "apply7x7" => oracle::unfold(7, &d(&i.kern), &d(&i.rad), 3, w, h),
         "window7" => oracle::fused_pixelwise(&[7], &d(&i.logits[..w * h]), None, None, &d(&i.rad), 3, w, h),
-        "fused6" => oracle::fused_pixelwise(
+        "fused6" | "fused6-sep" => oracle::fused_pixelwise(
             &[3, 5, 7, 9, 11, 13],
             &d(&i.logits),
             Some(&d(&i.fus)),
@@ -316,7 +317,9 @@ fn measure<P: HostPrecision>(
                 pool.bands(dst, 1, scratch, len, |b, y0, s| unfold::apply_rows::<P>(isa, 7, &kv, &rv, b, y0, s))?;
                 Ok::<Duration, HostError>(t.elapsed())
             }
-            "window7" | "fused6" => {
+            "window7" | "fused6" | "fused6-sep" => {
+                // fused6-sep: the same filter through the separable window sums.
+                let path = if op == "fused6-sep" { WindowPath::Separable } else { WindowPath::BoxSum };
                 let sizes: &[usize] = if op == "window7" { &[7] } else { &[3, 5, 7, 9, 11, 13] };
                 let m = sizes.len();
                 let imp = stored::<P>(m, w, h, &i.logits[..m * w * h], lfrac);
@@ -329,11 +332,9 @@ fn measure<P: HostPrecision>(
                     albedo: (m > 1).then(|| alb.view()),
                     radiance: rad.view(),
                 };
-                let len = softmax::fused_scratch_len::<P>(WindowPath::BoxSum, sizes, 3, w);
+                let len = softmax::fused_scratch_len::<P>(path, sizes, 3, w);
                 let t = Instant::now();
-                pool.bands(dst, 48, scratch, len, |b, y0, s| {
-                    softmax::fused_filter::<P>(isa, WindowPath::BoxSum, &inp, b, y0, s)
-                })?;
+                pool.bands(dst, 48, scratch, len, |b, y0, s| softmax::fused_filter::<P>(isa, path, &inp, b, y0, s))?;
                 Ok(t.elapsed())
             }
             "kernels7" => {
