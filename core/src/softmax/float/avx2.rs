@@ -490,13 +490,8 @@ fn vertical_sum_k<const K: usize>(ring: &[f32], k: usize, v: &mut [f32]) {
         }
         i += 8;
     }
-    for i in i..n {
-        let mut s = ring[i];
-        for slot in 1..k {
-            s += ring[slot * SEP_SS + i];
-        }
-        v[i] = s;
-    }
+    // The same additions in the same order as the chunks.
+    ScalarOps::<f32>::new().vertical_sum(&ring[i..], k, &mut v[i..]);
 }
 
 /// Eight horizontal window sums `sum_{j < k} p[x + j]`, `j` ascending.
@@ -553,24 +548,18 @@ fn horizontal_direct_k<const K: usize, const NP: usize>(
         }
         x += 8;
     }
-    let window = |q: usize, x: usize| {
-        let row = &v[q * SEP_LS + x..q * SEP_LS + x + k];
-        row[1..].iter().fold(row[0], |s, &t| s + t)
-    };
-    let mut any_tiny = all != 0xff;
-    for x in x..tw {
-        let d = window(0, x);
-        den[x] = d;
-        if d >= TINY_DENOMINATOR {
-            let inv = alpha[x] / d;
-            for q in 1..np {
-                acc[(q - 1) * acc_plane + x] += window(q, x) * inv;
-            }
-        } else {
-            any_tiny = true;
-        }
-    }
-    any_tiny
+    // The last 1-7 columns: the same operations in the same order.
+    let tail = x < tw
+        && ScalarOps::<f32>::new().horizontal_direct(
+            &v[x..],
+            np,
+            k,
+            &alpha[x..],
+            &mut acc[x..],
+            acc_plane,
+            &mut den[x..],
+        );
+    all != 0xff || tail
 }
 
 impl SepOps<f32> for Avx2Ops {

@@ -307,6 +307,82 @@ fn boxsum<S: FloatElement, A: Real, O: Ops<A>>(
     }
 }
 
+/// The fusion weights of output rows `ytop .. ytop + th`, columns `tx .. tx + tw`,
+/// into `alpha` (plane `i` at `i * th * tw`); all 1 without fusion logits.
+#[allow(clippy::too_many_arguments)]
+fn fusion_weights<S: FloatElement, A: Real, O: Ops<A>>(
+    o: &O,
+    inp: &FusedInputs<'_, S>,
+    ytop: usize,
+    th: usize,
+    tx: usize,
+    tw: usize,
+    alpha: &mut [A],
+) {
+    match &inp.fusion {
+        Some(f) => {
+            for t in 0..th {
+                if t + 2 < th {
+                    for q in 0..f.channels() {
+                        o.prefetch(&f.row(q, ytop + t + 2)[tx..tx + tw]);
+                    }
+                }
+                o.alphas(f, ytop + t, tx, tw, &mut alpha[t * tw..], th * tw);
+            }
+        }
+        None => alpha[..th * tw].fill(A::ONE),
+    }
+}
+
+/// The columns of output row `y` (from `tx`) whose window sum of size
+/// `sizes[i]` fell below `TINY`: recomputed with the direct path's
+/// window-local shift and added to `acc` (plane `c` at `c * acc_plane`).
+#[allow(clippy::too_many_arguments)]
+fn tiny_fallback<S: FloatElement, A: Real>(
+    inp: &FusedInputs<'_, S>,
+    i: usize,
+    den: &[A],
+    alpha: &[A],
+    y: usize,
+    tx: usize,
+    acc: &mut [A],
+    acc_plane: usize,
+) {
+    let ch = inp.radiance.channels();
+    for x in 0..alpha.len() {
+        if den[x] >= A::TINY {
+            continue;
+        }
+        let mut rr = [A::ZERO; MAX_CHANNELS];
+        direct_pixel(inp.sizes[i], &inp.importance, i, &inp.radiance, y, tx + x, &mut rr);
+        for c in 0..ch {
+            acc[c * acc_plane + x] += rr[c] * alpha[x];
+        }
+    }
+}
+
+/// `dst = acc * albedo` for output rows `ytop .. ytop + th`, columns `tx .. tx + tw`.
+#[allow(clippy::too_many_arguments)]
+fn finish_tile<S: FloatElement, A: Real, O: Ops<A>>(
+    o: &O,
+    inp: &FusedInputs<'_, S>,
+    dst: &mut ViewMut<'_, S>,
+    y0: usize,
+    ytop: usize,
+    th: usize,
+    tx: usize,
+    tw: usize,
+    acc: &[A],
+) {
+    for t in 0..th {
+        for c in 0..inp.radiance.channels() {
+            let a = &acc[(c * th + t) * tw..(c * th + t + 1) * tw];
+            let alb = inp.albedo.as_ref().map(|v| &v.row(c, ytop + t)[tx..tx + tw]);
+            o.finish(a, alb, &mut dst.row_mut(c, ytop - y0 + t)[tx..tx + tw]);
+        }
+    }
+}
+
 /// Euclidean floor of `a / k` times `k` for possibly negative rows.
 fn block_start(a: isize, k: usize) -> isize {
     a.div_euclid(k as isize) * k as isize
@@ -347,19 +423,7 @@ fn tile<S: FloatElement, A: Real, O: Ops<A>>(
     let (den, rest) = rest.split_at_mut(tw);
     let lv = &mut rest[..3 * np * lmax];
     acc.fill(A::ZERO);
-    match &inp.fusion {
-        Some(f) => {
-            for t in 0..th {
-                if t + 2 < th {
-                    for q in 0..m {
-                        o.prefetch(&f.row(q, ytop + t + 2)[tx..tx + tw]);
-                    }
-                }
-                o.alphas(f, ytop + t, tx, tw, &mut alpha[t * tw..], th * tw);
-            }
-        }
-        None => alpha[..th * tw].fill(A::ONE),
-    }
+    fusion_weights(o, inp, ytop, th, tx, tw, alpha);
     for (i, &k) in inp.sizes.iter().enumerate() {
         let r = k / 2;
         let ri = r as isize;
@@ -428,26 +492,11 @@ fn tile<S: FloatElement, A: Real, O: Ops<A>>(
             let arow = &alpha[(i * th + ot) * tw..(i * th + ot + 1) * tw];
             let any_tiny = o.horizontal_accumulate(&v_buf[..row], np, k, arow, &mut acc[ot * tw..], th * tw, den, lv);
             if any_tiny {
-                for x in 0..tw {
-                    if den[x] >= A::TINY {
-                        continue;
-                    }
-                    let mut rr = [A::ZERO; MAX_CHANNELS];
-                    direct_pixel(k, imp, i, rad, ytop + ot, tx + x, &mut rr);
-                    for c in 0..ch {
-                        acc[(c * th + ot) * tw + x] += rr[c] * arow[x];
-                    }
-                }
+                tiny_fallback(inp, i, den, arow, ytop + ot, tx, &mut acc[ot * tw..], th * tw);
             }
         }
     }
-    for t in 0..th {
-        for c in 0..ch {
-            let a = &acc[(c * th + t) * tw..(c * th + t + 1) * tw];
-            let alb = inp.albedo.as_ref().map(|v| &v.row(c, ytop + t)[tx..tx + tw]);
-            o.finish(a, alb, &mut dst.row_mut(c, ytop - y0 + t)[tx..tx + tw]);
-        }
-    }
+    finish_tile(o, inp, dst, y0, ytop, th, tx, tw, acc);
 }
 
 /// The separable path: the box-sum path's grid cells and shifts (so the two
@@ -527,19 +576,7 @@ fn sep_tile<S: FloatElement, A: Real, O: Ops<A> + SepOps<A>>(
     let (v, rest) = rest.split_at_mut(np * SEP_LS);
     let den = &mut rest[..tw];
     acc.fill(A::ZERO);
-    match &inp.fusion {
-        Some(f) => {
-            for t in 0..th {
-                if t + 2 < th {
-                    for q in 0..m {
-                        o.prefetch(&f.row(q, ytop + t + 2)[tx..tx + tw]);
-                    }
-                }
-                o.alphas(f, ytop + t, tx, tw, &mut alpha[t * tw..], th * tw);
-            }
-        }
-        None => alpha[..th * tw].fill(A::ONE),
-    }
+    fusion_weights(o, inp, ytop, th, tx, tw, alpha);
     let mut rads: [&[S]; MAX_CHANNELS] = [&[]; MAX_CHANNELS];
     for (i, &k) in inp.sizes.iter().enumerate() {
         let r = k / 2;
@@ -578,24 +615,9 @@ fn sep_tile<S: FloatElement, A: Real, O: Ops<A> + SepOps<A>>(
             let arow = &alpha[(i * th + ot) * tw..(i * th + ot + 1) * tw];
             let any_tiny = o.horizontal_direct(v, np, k, arow, &mut acc[ot * tw..], th * tw, den);
             if any_tiny {
-                for x in 0..tw {
-                    if den[x] >= A::TINY {
-                        continue;
-                    }
-                    let mut rr = [A::ZERO; MAX_CHANNELS];
-                    direct_pixel(k, imp, i, rad, ytop + ot, tx + x, &mut rr);
-                    for c in 0..ch {
-                        acc[(c * th + ot) * tw + x] += rr[c] * arow[x];
-                    }
-                }
+                tiny_fallback(inp, i, den, arow, ytop + ot, tx, &mut acc[ot * tw..], th * tw);
             }
         }
     }
-    for t in 0..th {
-        for c in 0..ch {
-            let a = &acc[(c * th + t) * tw..(c * th + t + 1) * tw];
-            let alb = inp.albedo.as_ref().map(|v| &v.row(c, ytop + t)[tx..tx + tw]);
-            o.finish(a, alb, &mut dst.row_mut(c, ytop - y0 + t)[tx..tx + tw]);
-        }
-    }
+    finish_tile(o, inp, dst, y0, ytop, th, tx, tw, acc);
 }

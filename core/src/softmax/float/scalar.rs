@@ -62,6 +62,27 @@ pub(crate) fn box_at<A: Real>(v: &[A], lv: &[A], k: usize, x: usize) -> A {
     acc.map_or(t, |a| a + t)
 }
 
+/// Carried column `u`'s weight `e = exp(clamp(l) - shift)` and `e * r_c`
+/// (all 0 outside `u0 .. u1` or without logits).
+fn weights_at<S: FloatElement, A: Real>(
+    l: Option<&[S]>,
+    rad: &[&[S]],
+    shift: A,
+    u0: usize,
+    u1: usize,
+    u: usize,
+) -> [A; 1 + MAX_CHANNELS] {
+    let mut vals = [A::ZERO; 1 + MAX_CHANNELS];
+    if let Some(l) = l.filter(|_| u >= u0 && u < u1) {
+        let e = (A::of(clamp_logit(l[u - u0].to_f32())) - shift).exp();
+        vals[0] = e;
+        for (c, r) in rad.iter().enumerate() {
+            vals[1 + c] = e * A::of(r[u - u0].to_f32());
+        }
+    }
+    vals
+}
+
 impl<A: Real> Ops<A> for ScalarOps<A> {
     fn row_max<S: FloatElement>(&self, row: &[S]) -> f32 {
         row.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v.to_f32()))
@@ -81,14 +102,7 @@ impl<A: Real> Ops<A> for ScalarOps<A> {
         let np = 1 + rad.len();
         let len = a.len() / np;
         for u in 0..len {
-            let mut vals = [A::ZERO; 1 + MAX_CHANNELS];
-            if let Some(l) = l.filter(|_| u >= u0 && u < u1) {
-                let e = (A::of(clamp_logit(l[u - u0].to_f32())) - shift).exp();
-                vals[0] = e;
-                for (c, r) in rad.iter().enumerate() {
-                    vals[1 + c] = e * A::of(r[u - u0].to_f32());
-                }
-            }
+            let vals = weights_at(l, rad, shift, u0, u1, u);
             for q in 0..np {
                 let i = q * len + u;
                 a[i] = vals[q];
@@ -180,14 +194,7 @@ impl<A: Real> SepOps<A> for ScalarOps<A> {
     fn weights_row<S: FloatElement>(&self, l: Option<&[S]>, rad: &[&[S]], shift: A, u0: usize, u1: usize, w: &mut [A]) {
         let np = 1 + rad.len();
         for u in 0..SEP_LS {
-            let mut vals = [A::ZERO; 1 + MAX_CHANNELS];
-            if let Some(l) = l.filter(|_| u >= u0 && u < u1) {
-                let e = (A::of(clamp_logit(l[u - u0].to_f32())) - shift).exp();
-                vals[0] = e;
-                for (c, r) in rad.iter().enumerate() {
-                    vals[1 + c] = e * A::of(r[u - u0].to_f32());
-                }
-            }
+            let vals = weights_at(l, rad, shift, u0, u1, u);
             for q in 0..np {
                 w[q * SEP_LS + u] = vals[q];
             }
