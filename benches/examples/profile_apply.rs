@@ -1,10 +1,14 @@
 //! The 7x7 kernel apply from a 49-plane map at 1280x720 on one thread, the
-//! fastest of N repetitions: `ISA=avx512 profile_apply [REPS] [f32|f16]`.
-use mcdenoise_benches::{values, H, W};
+//! fastest of N repetitions: `ISA=avx512 profile_apply [REPS] [f32|f16]`
+//! (W and H override the frame size; a small frame shows the in-cache speed).
+use mcdenoise_benches::values;
 use mcdenoise_core::{unfold, Isa, View, ViewMut, F16, F32};
 
 macro_rules! run {
     ($p:ty, $conv:expr, $back:expr, $isa:expr, $reps:expr) => {{
+        let dim = |v: &str, d: usize| std::env::var(v).ok().and_then(|s| s.parse().ok()).unwrap_or(d);
+        #[allow(non_snake_case)]
+        let (W, H) = (dim("W", mcdenoise_benches::W), dim("H", mcdenoise_benches::H));
         let plane = W * H;
         let kern: Vec<_> = values(49 * plane, 0.0, 0.04, 6).into_iter().map($conv).collect();
         let src: Vec<_> = values(3 * plane, 0.0, 4.0, 7).into_iter().map($conv).collect();
