@@ -383,6 +383,71 @@ fn finish_tile<S: FloatElement, A: Real, O: Ops<A>>(
     }
 }
 
+/// The columns a tile starting at image column `tx` carries for radius `r`
+/// (`l` of them, from `tx - r`): carried columns `u0 .. u1` lie inside the
+/// image, as image columns `xs .. xe`.
+fn carried(tx: usize, l: usize, r: usize, w: usize) -> (usize, usize, usize, usize) {
+    let xbase = tx as isize - r as isize;
+    let u0 = (-xbase).max(0) as usize;
+    let u1 = ((w as isize - xbase).min(l as isize)) as usize;
+    let xs = (xbase + u0 as isize) as usize;
+    (u0, u1, xs, xs + (u1 - u0))
+}
+
+/// The shift of size `i` (radius `r`) in the grid cell from row `cell`: the
+/// largest clamped logit of the cell's rows and their halo, columns `xs .. xe`.
+#[allow(clippy::too_many_arguments)]
+fn cell_shift<S: FloatElement, A: Real, O: Ops<A>>(
+    o: &O,
+    imp: &View<'_, S>,
+    i: usize,
+    r: usize,
+    cell: usize,
+    xs: usize,
+    xe: usize,
+) -> A {
+    let mut shift = f32::NEG_INFINITY;
+    let (sy0, sy1) = (cell.saturating_sub(r), (cell + TILE_H + r).min(imp.height()));
+    for yy in sy0..sy1 {
+        if yy + 4 < sy1 {
+            o.prefetch(&imp.row(i, yy + 4)[xs..xe]);
+        }
+        shift = shift.max(o.row_max(&imp.row(i, yy)[xs..xe]));
+    }
+    A::of(clamp_logit(shift))
+}
+
+/// Image row `yy` of importance plane `i`, columns `xs .. xe` (`None`
+/// outside the image), with the radiance rows put in `rads`; prefetches the
+/// rows two below.
+#[allow(clippy::too_many_arguments)]
+fn source_row<'a, S: FloatElement, A: Real, O: Ops<A>>(
+    o: &O,
+    inp: &FusedInputs<'a, S>,
+    i: usize,
+    yy: isize,
+    xs: usize,
+    xe: usize,
+    rads: &mut [&'a [S]; MAX_CHANNELS],
+) -> Option<&'a [S]> {
+    let (imp, rad) = (&inp.importance, &inp.radiance);
+    let h = rad.height();
+    let ahead = yy + 2;
+    if ahead >= 0 && (ahead as usize) < h {
+        o.prefetch(&imp.row(i, ahead as usize)[xs..xe]);
+        for c in 0..rad.channels() {
+            o.prefetch(&rad.row(c, ahead as usize)[xs..xe]);
+        }
+    }
+    if yy < 0 || yy as usize >= h {
+        return None;
+    }
+    for (c, rr) in rads.iter_mut().enumerate().take(rad.channels()) {
+        *rr = &rad.row(c, yy as usize)[xs..xe];
+    }
+    Some(&imp.row(i, yy as usize)[xs..xe])
+}
+
 /// Euclidean floor of `a / k` times `k` for possibly negative rows.
 fn block_start(a: isize, k: usize) -> isize {
     a.div_euclid(k as isize) * k as isize
@@ -409,7 +474,7 @@ fn tile<S: FloatElement, A: Real, O: Ops<A>>(
 ) {
     let rad = &inp.radiance;
     let imp = &inp.importance;
-    let (w, h, ch) = (rad.width(), rad.height(), rad.channels());
+    let (w, ch) = (rad.width(), rad.channels());
     let m = inp.sizes.len();
     let rmax = inp.sizes.iter().copied().max().unwrap_or(1) / 2;
     let np = 1 + ch; // planes carried: weight sum, then one per channel
@@ -429,23 +494,9 @@ fn tile<S: FloatElement, A: Real, O: Ops<A>>(
         let ri = r as isize;
         let l = tw + 2 * r; // columns carried for this size
         let row = np * l; // words per carried row (all planes)
-        let xbase = tx as isize - ri;
-        let u0 = (-xbase).max(0) as usize;
-        let u1 = ((w as isize - xbase).min(l as isize)) as usize;
-        let xs = (xbase + u0 as isize) as usize; // image column of carried column u0
-        let xe = xs + (u1 - u0);
+        let (u0, u1, xs, xe) = carried(tx, l, r, w);
 
-        // The shift: the largest (clamped) logit of the whole grid cell and its halo.
-        let mut shift = f32::NEG_INFINITY;
-        let sy0 = cell.saturating_sub(r);
-        let sy1 = (cell + TILE_H + r).min(h);
-        for yy in sy0..sy1 {
-            if yy + 4 < sy1 {
-                o.prefetch(&imp.row(i, yy + 4)[xs..xe]);
-            }
-            shift = shift.max(o.row_max(&imp.row(i, yy)[xs..xe]));
-        }
-        let shift = A::of(clamp_logit(shift));
+        let shift = cell_shift(o, imp, i, r, cell, xs, xe);
 
         // Carried rows: from the start of the block holding the first window's
         // top row to the last window's bottom row.
@@ -456,20 +507,7 @@ fn tile<S: FloatElement, A: Real, O: Ops<A>>(
         let mut rads: [&[S]; MAX_CHANNELS] = [&[]; MAX_CHANNELS];
         for t in 0..tt {
             let yy = ybase + t as isize;
-            let ahead = yy + 2;
-            if ahead >= 0 && (ahead as usize) < h {
-                o.prefetch(&imp.row(i, ahead as usize)[xs..xe]);
-                for c in 0..ch {
-                    o.prefetch(&rad.row(c, ahead as usize)[xs..xe]);
-                }
-            }
-            let inside = yy >= 0 && (yy as usize) < h;
-            let lrow = inside.then(|| &imp.row(i, yy as usize)[xs..xe]);
-            if inside {
-                for (c, rr) in rads.iter_mut().enumerate().take(ch) {
-                    *rr = &rad.row(c, yy as usize)[xs..xe];
-                }
-            }
+            let lrow = source_row(o, inp, i, yy, xs, xe, &mut rads);
             let a_row = &mut a_buf[t * row..(t + 1) * row];
             let (p_before, p_rest) = p_buf.split_at_mut(t * row);
             let p_prev = (t > 0 && block_pos(t) != 0).then(|| &p_before[(t - 1) * row..]);
@@ -510,7 +548,7 @@ fn separable<S: FloatElement, A: Real, O: Ops<A> + SepOps<A>>(
     scratch: &mut [A],
 ) {
     let imp = &inp.importance;
-    let (w, h) = (inp.radiance.width(), inp.radiance.height());
+    let w = inp.radiance.width();
     let y_end = y0 + dst.height();
     let mut shifts = [A::ZERO; MAX_FUSED];
     let mut y = y0;
@@ -523,16 +561,8 @@ fn separable<S: FloatElement, A: Real, O: Ops<A> + SepOps<A>>(
             // The shift of each size: the largest (clamped) logit of the cell and its halo.
             for (i, &k) in inp.sizes.iter().enumerate() {
                 let r = k / 2;
-                let (xs, xe) = (cx.saturating_sub(r), (cx + cw + r).min(w));
-                let mut shift = f32::NEG_INFINITY;
-                let (sy0, sy1) = (cell.saturating_sub(r), (cell + TILE_H + r).min(h));
-                for yy in sy0..sy1 {
-                    if yy + 4 < sy1 {
-                        o.prefetch(&imp.row(i, yy + 4)[xs..xe]);
-                    }
-                    shift = shift.max(o.row_max(&imp.row(i, yy)[xs..xe]));
-                }
-                shifts[i] = A::of(clamp_logit(shift));
+                let (_, _, xs, xe) = carried(cx, cw + 2 * r, r, w);
+                shifts[i] = cell_shift(o, imp, i, r, cell, xs, xe);
             }
             let mut tx = cx;
             while tx < cx + cw {
@@ -565,8 +595,7 @@ fn sep_tile<S: FloatElement, A: Real, O: Ops<A> + SepOps<A>>(
     scratch: &mut [A],
 ) {
     let rad = &inp.radiance;
-    let imp = &inp.importance;
-    let (w, h, ch) = (rad.width(), rad.height(), rad.channels());
+    let (w, ch) = (rad.width(), rad.channels());
     let m = inp.sizes.len();
     let kmax = inp.sizes.iter().copied().max().unwrap_or(1);
     let np = 1 + ch;
@@ -582,27 +611,10 @@ fn sep_tile<S: FloatElement, A: Real, O: Ops<A> + SepOps<A>>(
         let r = k / 2;
         let ri = r as isize;
         let l = tw + 2 * r; // columns carried for this size
-        let xbase = tx as isize - ri;
-        let u0 = (-xbase).max(0) as usize;
-        let u1 = ((w as isize - xbase).min(l as isize)) as usize;
-        let xs = (xbase + u0 as isize) as usize; // image column of carried column u0
-        let xe = xs + (u1 - u0);
+        let (u0, u1, xs, xe) = carried(tx, l, r, w);
         for t in 0..th + 2 * r {
             let yy = ytop as isize - ri + t as isize;
-            let ahead = yy + 2;
-            if ahead >= 0 && (ahead as usize) < h {
-                o.prefetch(&imp.row(i, ahead as usize)[xs..xe]);
-                for c in 0..ch {
-                    o.prefetch(&rad.row(c, ahead as usize)[xs..xe]);
-                }
-            }
-            let inside = yy >= 0 && (yy as usize) < h;
-            let lrow = inside.then(|| &imp.row(i, yy as usize)[xs..xe]);
-            if inside {
-                for (c, rr) in rads.iter_mut().enumerate().take(ch) {
-                    *rr = &rad.row(c, yy as usize)[xs..xe];
-                }
-            }
+            let lrow = source_row(o, inp, i, yy, xs, xe, &mut rads);
             let slot = yy.rem_euclid(k as isize) as usize;
             let wrow = &mut ring[slot * SEP_SS..slot * SEP_SS + np * SEP_LS];
             o.weights_row(lrow, &rads[..ch], shifts[i], u0, u1, wrow);
