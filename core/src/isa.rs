@@ -8,6 +8,28 @@
 //! a silent fallback to scalar.
 
 /// An instruction-set family a kernel can be run with.
+///
+/// Which operators have their own kernel for each ISA (every other operator
+/// runs the next ISA down; all paths agree with the scalar one to the
+/// tolerances the tests state, and bit for bit where they say so):
+///
+/// | operator | `Avx2` | `Avx512` |
+/// |---|---|---|
+/// | 7x7 and other per-pixel kernel apply (f32, f16) | yes | yes |
+/// | the same, fixed point | yes | AVX2 kernel |
+/// | importance / fused filter (f32, f16): direct, separable | yes | AVX2 kernel |
+/// | importance / fused filter (f32, f16): box-sum | yes | yes |
+/// | importance kernels, channel softmax (f32, f16) | yes | AVX2 kernel |
+/// | convolution 1x1 / 3x3 / 5x5 (f32, f16, fixed) | yes | yes (fixed: VNNI when present) |
+/// | average / max pool, nearest upsample, scale compositor (f32, f16) | yes | AVX2 kernel |
+/// | tone maps, (de)modulation (f32, f16) | yes | AVX2 kernel |
+/// | à-trous step (f32, f16) | yes | AVX2 kernel |
+/// | SURE shrinkage (f32, f16) | yes | yes |
+/// | temporal accumulation | scalar | scalar |
+///
+/// `F16Arith` (every operation rounded to f16) is scalar only, and the fixed
+/// point importance filters, pools, tone maps and à-trous step are scalar.
+/// There is no aarch64 SIMD yet: on aarch64 everything runs [`Isa::Scalar`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Isa {
     /// Portable Rust, always available; the reference path.
@@ -15,25 +37,21 @@ pub enum Isa {
     /// x86_64 AVX2 with FMA and F16C (Haswell, Zen and later).
     Avx2,
     /// x86_64 AVX-512 (F, BW, DQ, VL) on top of AVX2, FMA and F16C (Skylake-SP,
-    /// Ice Lake, Zen 4 and later). Operators with a 16-lane kernel use it
-    /// (à-trous, fused filter, convolutions); every other operator runs its
-    /// AVX2 kernel under this value.
+    /// Ice Lake, Zen 4 and later); see the table above for the operators with a
+    /// 16-lane kernel.
     Avx512,
-    /// aarch64 Advanced SIMD.
-    Neon,
 }
 
 impl Isa {
-    /// Every ISA this crate knows, in order of preference from worst to best.
-    pub const ALL: [Isa; 4] = [Isa::Scalar, Isa::Avx2, Isa::Avx512, Isa::Neon];
+    /// Every ISA this crate knows, from the portable one to the widest.
+    pub const ALL: [Isa; 3] = [Isa::Scalar, Isa::Avx2, Isa::Avx512];
 
-    /// Short lower-case name (`scalar`, `avx2`, `neon`).
+    /// Short lower-case name (`scalar`, `avx2`, `avx512`).
     pub const fn name(self) -> &'static str {
         match self {
             Isa::Scalar => "scalar",
             Isa::Avx2 => "avx2",
             Isa::Avx512 => "avx512",
-            Isa::Neon => "neon",
         }
     }
 
@@ -48,7 +66,6 @@ impl Isa {
             Isa::Scalar => true,
             Isa::Avx2 => avx2_fma_f16c(),
             Isa::Avx512 => avx2_fma_f16c() && avx512(),
-            Isa::Neon => cfg!(all(target_arch = "aarch64", target_feature = "neon")),
         }
     }
 
@@ -58,20 +75,37 @@ impl Isa {
             Isa::Avx512
         } else if Isa::Avx2.is_supported() {
             Isa::Avx2
-        } else if Isa::Neon.is_supported() {
-            Isa::Neon
         } else {
             Isa::Scalar
         }
     }
 
-    /// `Ok` when supported, else [`crate::Error::IsaUnsupported`].
-    pub fn check(self) -> crate::Result<()> {
+    /// A [`Supported`] token when this CPU runs the ISA, else
+    /// [`crate::Error::IsaUnsupported`]. The token is the only way to reach a
+    /// SIMD kernel: every kernel takes one instead of a bare [`Isa`].
+    pub fn check(self) -> crate::Result<Supported> {
         if self.is_supported() {
-            Ok(())
+            Ok(Supported(self))
         } else {
             Err(crate::Error::IsaUnsupported { isa: self })
         }
+    }
+}
+
+/// Proof that an [`Isa`] runs on this CPU. Only [`Isa::check`] (and
+/// [`Supported::SCALAR`]) make one, so a kernel given a `Supported` may use the
+/// ISA's instructions without checking again.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Supported(Isa);
+
+impl Supported {
+    /// The portable path, supported everywhere.
+    pub const SCALAR: Supported = Supported(Isa::Scalar);
+
+    /// The checked instruction set.
+    #[inline(always)]
+    pub const fn isa(self) -> Isa {
+        self.0
     }
 }
 

@@ -18,6 +18,44 @@
 //!   output row), so the host can split an output with
 //!   [`ViewMut::split_rows_at`] and run bands on different threads; the result
 //!   does not depend on how the rows are split.
+//!
+//! ## Soundness
+//! Safe code cannot reach a kernel around its checks. The per-operator
+//! precision traits ([`unfold::UnfoldPrecision`], [`conv::ConvPrecision`], ...)
+//! are sealed, and their hidden kernel methods take a token that only this
+//! crate's public functions make, after checking the instruction set
+//! ([`Isa::check`] returns the [`isa::Supported`] proof every SIMD kernel
+//! takes) and every shape. The public function checks and runs:
+//!
+//! ```
+//! use mcdenoise_core::{unfold, Isa, View, ViewMut, F32};
+//! let (kernel, src, mut dst) = ([0.0f32; 49], [1.0f32; 1], [0.0f32; 1]);
+//! let kv = View::new(&kernel[..1], 1, 1, 1).unwrap(); // one plane: a 7x7 map needs 49
+//! let sv = View::new(&src, 1, 1, 1).unwrap();
+//! let mut dv = ViewMut::new(&mut dst, 1, 1, 1).unwrap();
+//! let err = unfold::apply_rows::<F32>(Isa::Scalar, 7, &kv, &sv, &mut dv, 30, &mut []);
+//! assert!(err.is_err()); // a bad kernel map and a band past the image: an error, no call
+//! ```
+//!
+//! while calling the kernel method directly does not compile, by name:
+//!
+//! ```compile_fail,E0308
+//! use mcdenoise_core::{unfold::UnfoldPrecision, Isa, View, ViewMut, F32};
+//! let (kernel, src, mut dst) = ([0.0f32; 49], [1.0f32; 1], [0.0f32; 1]);
+//! let kv = View::new(&kernel[..1], 1, 1, 1).unwrap();
+//! let sv = View::new(&src, 1, 1, 1).unwrap();
+//! let mut dv = ViewMut::new(&mut dst, 1, 1, 1).unwrap();
+//! <F32 as UnfoldPrecision>::apply_impl(Isa::Avx512, 7, &kv, &sv, &mut dv, 30, &mut []);
+//! ```
+//!
+//! nor through a generic bound, for want of the token:
+//!
+//! ```compile_fail,E0308
+//! use mcdenoise_core::{isa::Supported, unfold::UnfoldPrecision, View, ViewMut};
+//! fn sneak<P: UnfoldPrecision>(k: &View<'_, P::Store>, s: &View<'_, P::Store>, d: &mut ViewMut<'_, P::Store>) {
+//!     P::apply_impl(Supported::SCALAR, 7, k, s, d, 30, &mut []);
+//! }
+//! ```
 #![no_std]
 #![deny(unsafe_op_in_unsafe_fn)]
 // NaN handling is deliberate throughout: `!(x >= lo)` and `x.max(lo).min(hi)`
@@ -31,11 +69,11 @@ pub mod conv;
 pub mod error;
 pub mod fixed;
 pub mod isa;
-pub mod math;
+pub(crate) mod math;
 pub mod pool;
 pub mod precision;
 pub mod real;
-pub mod simd;
+pub(crate) mod simd;
 pub mod softmax;
 pub mod temporal;
 pub mod tonemap;

@@ -87,6 +87,26 @@ pub(crate) mod sealed {
     pub trait SealedElem {}
     impl SealedElem for f32 {}
     impl SealedElem for half::f16 {}
+
+    /// What a public operator function hands its precision trait's kernel
+    /// method once it has checked the instruction set and every shape. Code
+    /// outside this crate cannot name or make one, so the trait methods (public
+    /// only because the traits are) cannot be called around those checks.
+    #[derive(Clone, Copy, Debug)]
+    pub struct Checked(crate::isa::Supported);
+
+    impl Checked {
+        /// Only the operator modules make one, after their checks.
+        #[inline(always)]
+        pub(crate) fn new(isa: crate::isa::Supported) -> Self {
+            Checked(isa)
+        }
+        /// The checked instruction set.
+        #[inline(always)]
+        pub(crate) fn isa(self) -> crate::isa::Supported {
+            self.0
+        }
+    }
 }
 
 /// A floating-point storage element that is computed on in f32

@@ -144,8 +144,11 @@ impl<'a, T> View<'a, T> {
         self
     }
 
-    /// Row `y` of plane `c`. Panics when out of range (an internal invariant,
-    /// never caller input: operators check shapes before they index).
+    /// Row `y` of plane `c`.
+    ///
+    /// # Panics
+    /// When `c` or `y` is out of range, like slice indexing (operators check
+    /// shapes before they index, so caller input never gets here).
     #[inline]
     pub fn row(&self, c: usize, y: usize) -> &'a [T] {
         assert!(c < self.shape.channels && y < self.shape.height);
@@ -165,6 +168,9 @@ impl<'a, T> View<'a, T> {
     }
 
     /// Element `(c, y, x)`.
+    ///
+    /// # Panics
+    /// When `(c, y, x)` is out of range, like slice indexing.
     #[inline]
     pub fn at(&self, c: usize, y: usize, x: usize) -> T
     where
@@ -324,6 +330,9 @@ impl<'a, T> ViewMut<'a, T> {
     }
 
     /// Row `y` of plane `c`, shared.
+    ///
+    /// # Panics
+    /// When `c` or `y` is out of range, like slice indexing.
     #[inline]
     pub fn row(&self, c: usize, y: usize) -> &[T] {
         assert!(c < self.shape.channels && y < self.shape.height);
@@ -342,6 +351,9 @@ impl<'a, T> ViewMut<'a, T> {
     }
 
     /// Row `y` of plane `c`, exclusive.
+    ///
+    /// # Panics
+    /// When `c` or `y` is out of range, like slice indexing.
     #[inline]
     pub fn row_mut(&mut self, c: usize, y: usize) -> &mut [T] {
         assert!(c < self.shape.channels && y < self.shape.height);
@@ -353,6 +365,9 @@ impl<'a, T> ViewMut<'a, T> {
 
     /// Row `y` of planes `0 .. N` at once, each exclusive (the planes are
     /// disjoint, checked at construction).
+    ///
+    /// # Panics
+    /// When `N` exceeds the channels or `y` the rows, like slice indexing.
     #[inline]
     pub fn plane_rows_mut<const N: usize>(&mut self, y: usize) -> [&mut [T]; N] {
         assert!(N <= self.shape.channels && y < self.shape.height);
@@ -405,7 +420,9 @@ impl<'a, T> ViewMut<'a, T> {
     }
 
     /// Rows `y0 .. y0 + n` of every plane as a shorter-lived exclusive view.
-    /// Panics when out of range (internal use after shape checks).
+    ///
+    /// # Panics
+    /// When the rows are out of range, like slice indexing.
     pub fn rows_mut(&mut self, y0: usize, n: usize) -> ViewMut<'_, T> {
         assert!(y0.checked_add(n).is_some_and(|e| e <= self.shape.height));
         ViewMut {

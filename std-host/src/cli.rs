@@ -23,7 +23,7 @@ usage:
       --method M                 none | ta | atrous | sure-atrous
       --precision P              f32 (default) | f16 | f16-arith | fixed
       --threads N                worker threads (default: all cores)
-      --isa I                    scalar | avx2 | avx512 | neon (default: the best this CPU has)
+      --isa I                    scalar | avx2 | avx512 (default: the best this CPU has)
       --phi-color F              a-trous colour edge-stopping, in noise variances (default 64)
       --half                     write f16 EXR (default f32)
       --png                      also write a tone-mapped PNG preview per frame
@@ -117,7 +117,7 @@ fn parse_settings(flag: &str, value: &str, s: &mut Settings) -> Result<bool> {
         }
         "--isa" => {
             s.isa = Isa::from_name(value)
-                .ok_or_else(|| usage(format!("--isa: expected scalar, avx2 or neon; got '{value}'")))?
+                .ok_or_else(|| usage(format!("--isa: expected scalar, avx2 or avx512; got '{value}'")))?
         }
         _ => return Ok(false),
     }

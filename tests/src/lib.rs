@@ -107,7 +107,7 @@ pub fn assert_close32(what: &str, a: &[f32], b: &[f32], atol: f32, rtol: f32) {
 }
 
 /// The instruction sets to test: every supported one; an unsupported one is
-/// reported as skipped on stderr, and is a failure when it is listed in the
+/// reported as skipped on stderr (once per test process), and is a failure when it is listed in the
 /// environment variable `MCDENOISE_REQUIRE_ISAS` (comma-separated names), so a
 /// CI machine known to have AVX2 cannot pass by skipping it.
 pub fn isas_under_test() -> Vec<mcdenoise_core::Isa> {
@@ -120,7 +120,12 @@ pub fn isas_under_test() -> Vec<mcdenoise_core::Isa> {
         } else if required.split(',').any(|r| r.trim() == isa.name()) {
             panic!("instruction set {} is required by MCDENOISE_REQUIRE_ISAS but this CPU lacks it", isa.name());
         } else {
-            eprintln!("skipped: instruction set {} is not supported here", isa.name());
+            static SAID: std::sync::Mutex<Vec<mcdenoise_core::Isa>> = std::sync::Mutex::new(Vec::new());
+            let mut said = SAID.lock().unwrap_or_else(|e| e.into_inner());
+            if !said.contains(&isa) {
+                said.push(isa);
+                eprintln!("skipped: instruction set {} is not supported here", isa.name());
+            }
         }
     }
     out

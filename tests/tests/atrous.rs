@@ -381,10 +381,14 @@ fn sure_shrink_levels_refuses_bad_shapes() {
 fn sure_pick_minimises_the_risk() {
     // e = detail energy, s = its noise: pure noise keeps nothing, strong signal keeps all.
     let cands = atrous::SURE_CANDIDATES;
-    assert_eq!(atrous::best_beta(1.0, 1.0, &cands), 0.0);
-    assert_eq!(atrous::best_beta(100.0, 0.0, &cands), 1.0);
+    assert_eq!(atrous::best_beta(1.0, 1.0, &cands).unwrap(), 0.0);
+    assert_eq!(atrous::best_beta(100.0, 0.0, &cands).unwrap(), 1.0);
     // Continuous optimum 1 - s/e = 0.6.
-    assert_eq!(atrous::best_beta(1.0, 0.4, &cands), 0.6);
+    assert_eq!(atrous::best_beta(1.0, 0.4, &cands).unwrap(), 0.6);
+    // Empty or out-of-range candidates: an error, not a panic.
+    assert!(atrous::best_beta(1.0, 0.4, &[]).is_err());
+    assert!(atrous::best_beta(1.0, 0.4, &[0.5, 1.5]).is_err());
+    assert!(atrous::best_beta(1.0, 0.4, &[f32::NAN]).is_err());
 }
 
 fn fixture(p: &str) -> std::path::PathBuf {

@@ -52,7 +52,10 @@
 //! 0, where it is signal well above the noise at 1.
 
 use crate::error::{check_scratch, check_shape, Error, Result, Shape};
-use crate::precision::{sealed::Sealed, F16Arith, Fixed, Precision, F16, F32};
+use crate::precision::{
+    sealed::{Checked, Sealed},
+    F16Arith, Fixed, Precision, F16, F32,
+};
 use crate::unfold::check_band;
 use crate::view::{View, ViewMut};
 use crate::Isa;
@@ -113,7 +116,7 @@ pub trait AtrousPrecision: Precision + Sealed {
     #[doc(hidden)]
     #[allow(clippy::too_many_arguments)]
     fn step_impl(
-        isa: Isa,
+        chk: Checked,
         level: u32,
         groups: usize,
         with_variance: bool,
@@ -137,7 +140,7 @@ macro_rules! float_atrous {
                 }
             }
             fn step_impl(
-                isa: Isa,
+                chk: Checked,
                 level: u32,
                 groups: usize,
                 with_variance: bool,
@@ -148,7 +151,7 @@ macro_rules! float_atrous {
                 y0: usize,
                 scratch: &mut [f32],
             ) {
-                float::step::<_, $a>(isa, level, groups, with_variance, params, guides, src, dst, y0, scratch)
+                float::step::<_, $a>(chk.isa(), level, groups, with_variance, params, guides, src, dst, y0, scratch)
             }
         }
     };
@@ -162,7 +165,7 @@ impl AtrousPrecision for Fixed {
         0
     }
     fn step_impl(
-        _isa: Isa,
+        _chk: Checked,
         level: u32,
         groups: usize,
         with_variance: bool,
@@ -204,7 +207,7 @@ pub fn step<P: AtrousPrecision>(
     y0: usize,
     scratch: &mut [f32],
 ) -> Result<()> {
-    isa.check()?;
+    let chk = Checked::new(isa.check()?);
     if level > MAX_LEVEL {
         return Err(Error::BadParameter { what: "a-trous level", expected: "0 to 7" });
     }
@@ -233,7 +236,7 @@ pub fn step<P: AtrousPrecision>(
         return Ok(());
     }
     check_scratch(P::scratch_len_impl(level), scratch.len())?;
-    P::step_impl(isa, level, groups, with_variance, params, guides, src, dst, y0, scratch);
+    P::step_impl(chk, level, groups, with_variance, params, guides, src, dst, y0, scratch);
     Ok(())
 }
 
@@ -260,9 +263,19 @@ fn check_candidates(candidates: &[f32]) -> Result<()> {
     Ok(())
 }
 
-/// The candidate minimising `(1 - b)^2 e + (2 b - 1) s` (first on ties).
-#[inline]
-pub fn best_beta(e: f32, s: f32, candidates: &[f32]) -> f32 {
+/// The candidate minimising the SURE `(1 - b)^2 e + (2 b - 1) s` (the first
+/// on ties), as every shrinkage path picks it per pixel; an error when
+/// `candidates` is empty or holds a value outside `[0, 1]`.
+pub fn best_beta(e: f32, s: f32, candidates: &[f32]) -> Result<f32> {
+    check_candidates(candidates)?;
+    Ok(risk_argmin(e, s, candidates))
+}
+
+/// [`best_beta`] past its check (`candidates` not empty): the scalar
+/// shrinkage calls it per pixel; the SIMD paths compute the same risks in
+/// the same order, lane by lane.
+#[inline(always)]
+pub(crate) fn risk_argmin(e: f32, s: f32, candidates: &[f32]) -> f32 {
     let mut best = (f32::INFINITY, candidates[0]);
     for &b in candidates {
         let r = (1.0 - b) * (1.0 - b) * e + (2.0 * b - 1.0) * s;

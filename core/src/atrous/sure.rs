@@ -21,7 +21,7 @@ const _: () = assert!(WIN == 5);
 
 /// Scratch words [`sure_shrink`] needs for images `width` wide.
 pub fn sure_scratch_len(width: usize) -> usize {
-    (2 * WIN + 6) * width
+    (2 * WIN + 5) * width
 }
 
 /// Adds `beta(p) * D(p)` of one level to the reconstruction rows `y0 ..`.
@@ -50,7 +50,7 @@ pub fn sure_shrink<S: FloatElement>(
     y0: usize,
     scratch: &mut [f32],
 ) -> Result<()> {
-    isa.check()?;
+    let isa = isa.check()?;
     check_candidates(candidates)?;
     let s = cur.shape();
     let (nc, nn) = match source {
@@ -79,7 +79,7 @@ pub const MAX_SURE_LEVELS: usize = 8;
 /// images minus one) on images `width` wide: per level a ring of window
 /// rows, plus the row buffers.
 pub fn sure_levels_scratch_len(levels: usize, width: usize) -> usize {
-    levels.saturating_mul(2 * WIN).saturating_add(9).saturating_mul(width)
+    levels.saturating_mul(2 * WIN).saturating_add(8).saturating_mul(width)
 }
 
 /// Every level's SURE shrinkage and the reconstruction in one streaming
@@ -104,7 +104,7 @@ pub fn sure_shrink_levels<S: FloatElement>(
     y0: usize,
     scratch: &mut [f32],
 ) -> Result<()> {
-    isa.check()?;
+    let isa = isa.check()?;
     check_candidates(candidates)?;
     if images.len() < 2 || images.len() > MAX_SURE_LEVELS + 1 {
         return Err(crate::Error::BadParameter {
@@ -159,18 +159,18 @@ struct Job<'j, 'a, S> {
 
 /// Runs `job` with the instruction set's code (checked by the caller).
 fn dispatch<S: FloatElement>(
-    isa: Isa,
+    isa: crate::isa::Supported,
     job: Job<'_, '_, S>,
     out: &mut ViewMut<'_, f32>,
     y0: usize,
     scratch: &mut [f32],
 ) {
-    match isa {
+    match isa.isa() {
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: the ISA was checked.
+        // SAFETY: `isa` is a `Supported` token: this CPU runs the ISA.
         Isa::Avx2 => unsafe { run_avx2(job, out, y0, scratch) },
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: the ISA was checked.
+        // SAFETY: `isa` is a `Supported` token: this CPU runs the ISA.
         Isa::Avx512 => unsafe { run_avx512(job, out, y0, scratch) },
         _ => run::<S, false>(job, out, y0, scratch),
     }
@@ -326,7 +326,6 @@ fn select_update<S: FloatElement, const AVX2: bool>(
     a: &[&[S]; 3],
     b: &[&[S]; 3],
     o: &mut [&mut [f32]; 3],
-    best_r: &mut [f32],
     best_b: &mut [f32],
 ) {
     let w = se.len();
@@ -336,19 +335,9 @@ fn select_update<S: FloatElement, const AVX2: bool>(
         unsafe { select_update_avx2(candidates, se, ss, a, b, o, w) };
         return;
     }
-    // The risk-minimising weight, the first candidate on ties (as
-    // [`super::best_beta`]), then the update.
-    best_r.fill(f32::INFINITY);
-    best_b.fill(candidates[0]);
-    for &bt in candidates {
-        let (ce, cs) = ((1.0 - bt) * (1.0 - bt), 2.0 * bt - 1.0);
-        for x in 0..w {
-            let risk = ce * se[x] + cs * ss[x];
-            if risk < best_r[x] {
-                best_r[x] = risk;
-                best_b[x] = bt;
-            }
-        }
+    // The risk-minimising weight per pixel, the first candidate on ties.
+    for x in 0..w {
+        best_b[x] = super::risk_argmin(se[x], ss[x], candidates);
     }
     for c in 0..3 {
         for x in 0..w {
@@ -376,7 +365,6 @@ fn run<S: FloatElement, const AVX2: bool>(
     let (ts, rest) = rest.split_at_mut(w);
     let (se, rest) = rest.split_at_mut(w);
     let (ss, rest) = rest.split_at_mut(w);
-    let (best_r, rest) = rest.split_at_mut(w);
     let (best_b, mut rest) = rest.split_at_mut(w);
     let mut rings: [Option<Ring<'_>>; MAX_SURE_LEVELS] = Default::default();
     for ring in rings.iter_mut().take(levels) {
@@ -417,7 +405,7 @@ fn run<S: FloatElement, const AVX2: bool>(
                     [a0, a1, &mut a2[..w]]
                 }
             };
-            select_update::<S, AVX2>(candidates, (se, ss), &a, &b, &mut o, best_r, best_b);
+            select_update::<S, AVX2>(candidates, (se, ss), &a, &b, &mut o, best_b);
         }
         if into == Sink::Reconstruct {
             let mut o = out.plane_rows_mut::<3>(y - y0);

@@ -14,7 +14,10 @@
 //! buffers) comes with the training engine.
 
 use crate::error::{check_scratch, Error, Result, Shape};
-use crate::precision::{sealed::Sealed, F16Arith, Fixed, Precision, F16, F32};
+use crate::precision::{
+    sealed::{Checked, Sealed},
+    F16Arith, Fixed, Precision, F16, F32,
+};
 use crate::unfold::check_band;
 use crate::view::{View, ViewMut};
 use crate::Isa;
@@ -124,7 +127,7 @@ pub trait ConvPrecision: Precision + Sealed {
     }
     #[doc(hidden)]
     fn forward_impl(
-        isa: Isa,
+        chk: Checked,
         layer: &Conv2d<'_, Self::Store>,
         src: &View<'_, Self::Store>,
         dst: &mut ViewMut<'_, Self::Store>,
@@ -137,14 +140,14 @@ macro_rules! float_conv {
     ($p:ty, $a:ty) => {
         impl ConvPrecision for $p {
             fn forward_impl(
-                isa: Isa,
+                chk: Checked,
                 layer: &Conv2d<'_, Self::Store>,
                 src: &View<'_, Self::Store>,
                 dst: &mut ViewMut<'_, Self::Store>,
                 y0: usize,
                 scratch: &mut [f32],
             ) {
-                float::forward::<_, $a>(isa, layer, src, dst, y0, scratch)
+                float::forward::<_, $a>(chk.isa(), layer, src, dst, y0, scratch)
             }
         }
     };
@@ -175,14 +178,14 @@ impl ConvPrecision for Fixed {
         Ok(())
     }
     fn forward_impl(
-        isa: Isa,
+        chk: Checked,
         layer: &Conv2d<'_, i16>,
         src: &View<'_, i16>,
         dst: &mut ViewMut<'_, i16>,
         y0: usize,
         scratch: &mut [f32],
     ) {
-        fixed::forward(isa, layer, src, dst, y0, bytemuck::cast_slice_mut(scratch))
+        fixed::forward(chk.isa(), layer, src, dst, y0, bytemuck::cast_slice_mut(scratch))
     }
 }
 
@@ -202,7 +205,7 @@ pub fn conv2d<P: ConvPrecision>(
     y0: usize,
     scratch: &mut [f32],
 ) -> Result<()> {
-    isa.check()?;
+    let chk = Checked::new(isa.check()?);
     layer.check()?;
     P::check_layer(layer)?;
     let s = src.shape();
@@ -218,6 +221,6 @@ pub fn conv2d<P: ConvPrecision>(
     if dst.height() == 0 || s.width == 0 {
         return Ok(());
     }
-    P::forward_impl(isa, layer, src, dst, y0, scratch);
+    P::forward_impl(chk, layer, src, dst, y0, scratch);
     Ok(())
 }

@@ -14,7 +14,10 @@
 //! two column sums: `((f00 + f10) + (f01 + f11)) * 0.25`.
 
 use crate::error::{check_shape, Error, Result, Shape};
-use crate::precision::{sealed::Sealed, F16Arith, Fixed, Precision, F16, F32};
+use crate::precision::{
+    sealed::{Checked, Sealed},
+    F16Arith, Fixed, Precision, F16, F32,
+};
 use crate::unfold::check_band;
 use crate::view::{View, ViewMut};
 use crate::Isa;
@@ -39,12 +42,18 @@ pub enum Reduce {
 /// Precisions the pool operators are implemented for.
 pub trait PoolPrecision: Precision + Sealed {
     #[doc(hidden)]
-    fn reduce_impl(isa: Isa, op: Reduce, src: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>, y0: usize);
+    fn reduce_impl(
+        chk: Checked,
+        op: Reduce,
+        src: &View<'_, Self::Store>,
+        dst: &mut ViewMut<'_, Self::Store>,
+        y0: usize,
+    );
     #[doc(hidden)]
-    fn upsample_impl(isa: Isa, src: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>, y0: usize);
+    fn upsample_impl(chk: Checked, src: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>, y0: usize);
     #[doc(hidden)]
     fn composite_impl(
-        isa: Isa,
+        chk: Checked,
         fine: &View<'_, Self::Store>,
         coarse: &View<'_, Self::Store>,
         alpha: &View<'_, Self::Store>,
@@ -57,26 +66,26 @@ macro_rules! float_pool {
     ($p:ty, $a:ty) => {
         impl PoolPrecision for $p {
             fn reduce_impl(
-                isa: Isa,
+                chk: Checked,
                 op: Reduce,
                 src: &View<'_, Self::Store>,
                 dst: &mut ViewMut<'_, Self::Store>,
                 y0: usize,
             ) {
-                float::reduce::<_, $a>(isa, op, src, dst, y0)
+                float::reduce::<_, $a>(chk.isa(), op, src, dst, y0)
             }
-            fn upsample_impl(isa: Isa, src: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>, y0: usize) {
-                float::upsample::<_, $a>(isa, src, dst, y0)
+            fn upsample_impl(chk: Checked, src: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>, y0: usize) {
+                float::upsample::<_, $a>(chk.isa(), src, dst, y0)
             }
             fn composite_impl(
-                isa: Isa,
+                chk: Checked,
                 fine: &View<'_, Self::Store>,
                 coarse: &View<'_, Self::Store>,
                 alpha: &View<'_, Self::Store>,
                 dst: &mut ViewMut<'_, Self::Store>,
                 y0: usize,
             ) {
-                float::composite::<_, $a>(isa, fine, coarse, alpha, dst, y0)
+                float::composite::<_, $a>(chk.isa(), fine, coarse, alpha, dst, y0)
             }
         }
     };
@@ -86,14 +95,14 @@ float_pool!(F16, f32);
 float_pool!(F16Arith, crate::real::H);
 
 impl PoolPrecision for Fixed {
-    fn reduce_impl(_isa: Isa, op: Reduce, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>, y0: usize) {
+    fn reduce_impl(_chk: Checked, op: Reduce, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>, y0: usize) {
         fixed::reduce(op, src, dst, y0)
     }
-    fn upsample_impl(_isa: Isa, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>, y0: usize) {
+    fn upsample_impl(_chk: Checked, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>, y0: usize) {
         fixed::upsample(src, dst, y0)
     }
     fn composite_impl(
-        _isa: Isa,
+        _chk: Checked,
         fine: &View<'_, i16>,
         coarse: &View<'_, i16>,
         alpha: &View<'_, i16>,
@@ -113,14 +122,14 @@ pub fn reduce2x2<P: PoolPrecision>(
     dst: &mut ViewMut<'_, P::Store>,
     y0: usize,
 ) -> Result<()> {
-    isa.check()?;
+    let chk = Checked::new(isa.check()?);
     let s = src.shape();
     let full = Shape::new(s.channels, coarse(s.width), coarse(s.height));
     check_band("pooled output", full, dst.shape(), y0)?;
     if dst.height() == 0 || s.width == 0 || s.channels == 0 {
         return Ok(());
     }
-    P::reduce_impl(isa, op, src, dst, y0);
+    P::reduce_impl(chk, op, src, dst, y0);
     Ok(())
 }
 
@@ -158,7 +167,7 @@ pub fn upsample_nearest2x<P: PoolPrecision>(
     y0: usize,
     full_height: usize,
 ) -> Result<()> {
-    isa.check()?;
+    let chk = Checked::new(isa.check()?);
     let s = src.shape();
     let d = dst.shape();
     if coarse(d.width) != s.width || coarse(full_height) != s.height {
@@ -172,7 +181,7 @@ pub fn upsample_nearest2x<P: PoolPrecision>(
     if d.height == 0 || d.width == 0 || d.channels == 0 {
         return Ok(());
     }
-    P::upsample_impl(isa, src, dst, y0);
+    P::upsample_impl(chk, src, dst, y0);
     Ok(())
 }
 
@@ -187,7 +196,7 @@ pub fn composite<P: PoolPrecision>(
     dst: &mut ViewMut<'_, P::Store>,
     y0: usize,
 ) -> Result<()> {
-    isa.check()?;
+    let chk = Checked::new(isa.check()?);
     let f = fine.shape();
     check_shape("coarse image", Shape::new(f.channels, coarse(f.width), coarse(f.height)), coarse_img.shape())?;
     let a = alpha.shape();
@@ -202,6 +211,6 @@ pub fn composite<P: PoolPrecision>(
     if dst.height() == 0 || f.width == 0 || f.channels == 0 {
         return Ok(());
     }
-    P::composite_impl(isa, fine, coarse_img, alpha, dst, y0);
+    P::composite_impl(chk, fine, coarse_img, alpha, dst, y0);
     Ok(())
 }

@@ -7,22 +7,6 @@ use core::arch::x86_64::*;
 
 use crate::precision::FloatElement;
 
-/// Sixteen elements from `p` (unaligned) as f32 lanes.
-///
-/// # Safety
-/// `p .. p + 16` must be readable.
-#[inline]
-#[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl,avx2,fma,f16c")]
-pub unsafe fn load16<S: FloatElement>(p: *const S) -> __m512 {
-    if S::IS_F16 {
-        // SAFETY: caller guarantees 16 readable f16 = 32 bytes.
-        unsafe { _mm512_cvtph_ps(_mm256_loadu_si256(p as *const __m256i)) }
-    } else {
-        // SAFETY: caller guarantees 16 readable f32.
-        unsafe { _mm512_loadu_ps(p as *const f32) }
-    }
-}
-
 /// The lanes of `m` from `p` (unaligned); the others are 0.
 ///
 /// # Safety

@@ -37,7 +37,10 @@
 //!   row), then along `k` columns. Also subtraction-free; cost `2k` per pixel.
 
 use crate::error::{check_scratch, check_shape, Error, Result, Shape};
-use crate::precision::{sealed::Sealed, F16Arith, Fixed, Precision, F16, F32};
+use crate::precision::{
+    sealed::{Checked, Sealed},
+    F16Arith, Fixed, Precision, F16, F32,
+};
 use crate::unfold::check_band;
 use crate::view::{View, ViewMut};
 use crate::{check_kernel_size, Isa};
@@ -93,7 +96,7 @@ pub struct FusedInputs<'a, T> {
 pub trait SoftmaxPrecision: Precision + Sealed {
     #[doc(hidden)]
     fn fused_impl(
-        isa: Isa,
+        chk: Checked,
         path: WindowPath,
         inp: &FusedInputs<'_, Self::Store>,
         dst: &mut ViewMut<'_, Self::Store>,
@@ -101,35 +104,41 @@ pub trait SoftmaxPrecision: Precision + Sealed {
         scratch: &mut [f32],
     );
     #[doc(hidden)]
-    fn kernels_impl(isa: Isa, k: usize, logits: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>, y0: usize);
+    fn kernels_impl(
+        chk: Checked,
+        k: usize,
+        logits: &View<'_, Self::Store>,
+        dst: &mut ViewMut<'_, Self::Store>,
+        y0: usize,
+    );
     #[doc(hidden)]
-    fn channel_impl(isa: Isa, src: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>);
+    fn channel_impl(chk: Checked, src: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>);
 }
 
 macro_rules! float_softmax {
     ($p:ty) => {
         impl SoftmaxPrecision for $p {
             fn fused_impl(
-                isa: Isa,
+                chk: Checked,
                 path: WindowPath,
                 inp: &FusedInputs<'_, Self::Store>,
                 dst: &mut ViewMut<'_, Self::Store>,
                 y0: usize,
                 scratch: &mut [f32],
             ) {
-                float::fused(isa, path, inp, dst, y0, scratch)
+                float::fused(chk.isa(), path, inp, dst, y0, scratch)
             }
             fn kernels_impl(
-                isa: Isa,
+                chk: Checked,
                 k: usize,
                 logits: &View<'_, Self::Store>,
                 dst: &mut ViewMut<'_, Self::Store>,
                 y0: usize,
             ) {
-                float::kernels(isa, k, logits, dst, y0)
+                float::kernels(chk.isa(), k, logits, dst, y0)
             }
-            fn channel_impl(isa: Isa, src: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>) {
-                float::channel(isa, src, dst)
+            fn channel_impl(chk: Checked, src: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>) {
+                float::channel(chk.isa(), src, dst)
             }
         }
     };
@@ -139,7 +148,7 @@ float_softmax!(F16);
 
 impl SoftmaxPrecision for Fixed {
     fn fused_impl(
-        _isa: Isa,
+        _chk: Checked,
         path: WindowPath,
         inp: &FusedInputs<'_, i16>,
         dst: &mut ViewMut<'_, i16>,
@@ -148,17 +157,17 @@ impl SoftmaxPrecision for Fixed {
     ) {
         fixed::fused(path, inp, dst, y0, scratch)
     }
-    fn kernels_impl(_isa: Isa, k: usize, logits: &View<'_, i16>, dst: &mut ViewMut<'_, i16>, y0: usize) {
+    fn kernels_impl(_chk: Checked, k: usize, logits: &View<'_, i16>, dst: &mut ViewMut<'_, i16>, y0: usize) {
         fixed::kernels(k, logits, dst, y0)
     }
-    fn channel_impl(_isa: Isa, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>) {
+    fn channel_impl(_chk: Checked, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>) {
         fixed::channel(src, dst)
     }
 }
 
 impl SoftmaxPrecision for F16Arith {
     fn fused_impl(
-        _isa: Isa,
+        _chk: Checked,
         path: WindowPath,
         inp: &FusedInputs<'_, Self::Store>,
         dst: &mut ViewMut<'_, Self::Store>,
@@ -168,7 +177,7 @@ impl SoftmaxPrecision for F16Arith {
         float::fused_scalar::<_, crate::real::H>(path, inp, dst, y0, scratch)
     }
     fn kernels_impl(
-        _isa: Isa,
+        _chk: Checked,
         k: usize,
         logits: &View<'_, Self::Store>,
         dst: &mut ViewMut<'_, Self::Store>,
@@ -176,7 +185,7 @@ impl SoftmaxPrecision for F16Arith {
     ) {
         float::scalar::kernels::<_, crate::real::H>(k, logits, dst, y0)
     }
-    fn channel_impl(_isa: Isa, src: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>) {
+    fn channel_impl(_chk: Checked, src: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>) {
         float::scalar::channel::<_, crate::real::H>(src, dst)
     }
 }
@@ -230,7 +239,7 @@ pub fn fused_filter<P: SoftmaxPrecision>(
     y0: usize,
     scratch: &mut [f32],
 ) -> Result<()> {
-    isa.check()?;
+    let chk = Checked::new(isa.check()?);
     let s = inp.radiance.shape();
     let m = inp.sizes.len();
     if m == 0 || m > MAX_FUSED {
@@ -261,7 +270,7 @@ pub fn fused_filter<P: SoftmaxPrecision>(
     if dst.height() == 0 || s.width == 0 {
         return Ok(());
     }
-    P::fused_impl(isa, path, inp, dst, y0, scratch);
+    P::fused_impl(chk, path, inp, dst, y0, scratch);
     Ok(())
 }
 
@@ -276,7 +285,7 @@ pub fn importance_kernels<P: SoftmaxPrecision>(
     dst: &mut ViewMut<'_, P::Store>,
     y0: usize,
 ) -> Result<()> {
-    isa.check()?;
+    let chk = Checked::new(isa.check()?);
     check_kernel_size("importance window size", k, MAX_WINDOW)?;
     let s = logits.shape();
     if s.channels != 1 {
@@ -286,7 +295,7 @@ pub fn importance_kernels<P: SoftmaxPrecision>(
     if dst.height() == 0 || s.width == 0 {
         return Ok(());
     }
-    P::kernels_impl(isa, k, logits, dst, y0);
+    P::kernels_impl(chk, k, logits, dst, y0);
     Ok(())
 }
 
@@ -299,12 +308,12 @@ pub fn channel_softmax<P: SoftmaxPrecision>(
     src: &View<'_, P::Store>,
     dst: &mut ViewMut<'_, P::Store>,
 ) -> Result<()> {
-    isa.check()?;
+    let chk = Checked::new(isa.check()?);
     check_shape("channel softmax output", src.shape(), dst.shape())?;
     if src.channels() == 0 || src.width() == 0 || src.height() == 0 {
         return Ok(());
     }
-    P::channel_impl(isa, src, dst);
+    P::channel_impl(chk, src, dst);
     Ok(())
 }
 

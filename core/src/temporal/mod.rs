@@ -21,7 +21,10 @@
 //! (a fraction of the frame's position bounding-box diagonal).
 
 use crate::error::{check_shape, Error, Result, Shape};
-use crate::precision::{sealed::Sealed, F16Arith, Fixed, Precision, F16, F32};
+use crate::precision::{
+    sealed::{Checked, Sealed},
+    F16Arith, Fixed, Precision, F16, F32,
+};
 use crate::unfold::check_band;
 use crate::view::{View, ViewMut};
 use crate::Isa;
@@ -75,7 +78,7 @@ pub struct TemporalInputs<'a, T> {
 pub trait TemporalPrecision: Precision + Sealed {
     #[doc(hidden)]
     fn accumulate_impl(
-        isa: Isa,
+        chk: Checked,
         inp: &TemporalInputs<'_, Self::Store>,
         params: &TemporalParams,
         color: &mut ViewMut<'_, Self::Store>,
@@ -88,14 +91,14 @@ macro_rules! float_temporal {
     ($p:ty, $a:ty) => {
         impl TemporalPrecision for $p {
             fn accumulate_impl(
-                isa: Isa,
+                chk: Checked,
                 inp: &TemporalInputs<'_, Self::Store>,
                 params: &TemporalParams,
                 color: &mut ViewMut<'_, Self::Store>,
                 history: &mut ViewMut<'_, Self::Store>,
                 y0: usize,
             ) {
-                float::accumulate::<_, $a>(isa, inp, params, color, history, y0)
+                float::accumulate::<_, $a>(chk.isa(), inp, params, color, history, y0)
             }
         }
     };
@@ -106,7 +109,7 @@ float_temporal!(F16Arith, crate::real::H);
 
 impl TemporalPrecision for Fixed {
     fn accumulate_impl(
-        _isa: Isa,
+        _chk: Checked,
         inp: &TemporalInputs<'_, i16>,
         params: &TemporalParams,
         color: &mut ViewMut<'_, i16>,
@@ -127,7 +130,7 @@ pub fn accumulate<P: TemporalPrecision>(
     history: &mut ViewMut<'_, P::Store>,
     y0: usize,
 ) -> Result<()> {
-    isa.check()?;
+    let chk = Checked::new(isa.check()?);
     let s = inp.color.shape();
     let plane = |c| Shape::new(c, s.width, s.height);
     check_shape("previous colour", s, inp.prev_color.shape())?;
@@ -166,6 +169,6 @@ pub fn accumulate<P: TemporalPrecision>(
     if color.height() == 0 || s.width == 0 {
         return Ok(());
     }
-    P::accumulate_impl(isa, inp, params, color, history, y0);
+    P::accumulate_impl(chk, inp, params, color, history, y0);
     Ok(())
 }

@@ -13,7 +13,10 @@
 //!   NaN maps to 0 in every tone map.
 
 use crate::error::{check_shape, Error, Result};
-use crate::precision::{sealed::Sealed, F16Arith, Fixed, Precision, F16, F32};
+use crate::precision::{
+    sealed::{Checked, Sealed},
+    F16Arith, Fixed, Precision, F16, F32,
+};
 use crate::view::{View, ViewMut};
 use crate::Isa;
 
@@ -82,10 +85,10 @@ impl Map {
 /// Precisions the per-pixel maps are implemented for.
 pub trait TonemapPrecision: Precision + Sealed {
     #[doc(hidden)]
-    fn map_impl(isa: Isa, op: Map, src: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>);
+    fn map_impl(chk: Checked, op: Map, src: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>);
     #[doc(hidden)]
     fn modulate_impl(
-        isa: Isa,
+        chk: Checked,
         divide: bool,
         src: &View<'_, Self::Store>,
         albedo: &View<'_, Self::Store>,
@@ -97,18 +100,18 @@ pub trait TonemapPrecision: Precision + Sealed {
 macro_rules! float_tonemap {
     ($p:ty, $a:ty) => {
         impl TonemapPrecision for $p {
-            fn map_impl(isa: Isa, op: Map, src: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>) {
-                float::map::<_, $a>(isa, op, src, dst)
+            fn map_impl(chk: Checked, op: Map, src: &View<'_, Self::Store>, dst: &mut ViewMut<'_, Self::Store>) {
+                float::map::<_, $a>(chk.isa(), op, src, dst)
             }
             fn modulate_impl(
-                isa: Isa,
+                chk: Checked,
                 divide: bool,
                 src: &View<'_, Self::Store>,
                 albedo: &View<'_, Self::Store>,
                 eps: f32,
                 dst: &mut ViewMut<'_, Self::Store>,
             ) {
-                float::modulate::<_, $a>(isa, divide, src, albedo, eps, dst)
+                float::modulate::<_, $a>(chk.isa(), divide, src, albedo, eps, dst)
             }
         }
     };
@@ -118,11 +121,11 @@ float_tonemap!(F16, f32);
 float_tonemap!(F16Arith, crate::real::H);
 
 impl TonemapPrecision for Fixed {
-    fn map_impl(_isa: Isa, op: Map, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>) {
+    fn map_impl(_chk: Checked, op: Map, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>) {
         fixed::map(op, src, dst)
     }
     fn modulate_impl(
-        _isa: Isa,
+        _chk: Checked,
         divide: bool,
         src: &View<'_, i16>,
         albedo: &View<'_, i16>,
@@ -141,10 +144,10 @@ pub fn map<P: TonemapPrecision>(
     src: &View<'_, P::Store>,
     dst: &mut ViewMut<'_, P::Store>,
 ) -> Result<()> {
-    isa.check()?;
+    let chk = Checked::new(isa.check()?);
     op.check()?;
     check_shape("mapped output", src.shape(), dst.shape())?;
-    P::map_impl(isa, op, src, dst);
+    P::map_impl(chk, op, src, dst);
     Ok(())
 }
 
@@ -164,9 +167,9 @@ pub fn demodulate<P: TonemapPrecision>(
     eps: f32,
     dst: &mut ViewMut<'_, P::Store>,
 ) -> Result<()> {
-    isa.check()?;
+    let chk = Checked::new(isa.check()?);
     check_modulate(src.shape(), albedo.shape(), dst.shape(), eps)?;
-    P::modulate_impl(isa, true, src, albedo, eps, dst);
+    P::modulate_impl(chk, true, src, albedo, eps, dst);
     Ok(())
 }
 
@@ -178,8 +181,8 @@ pub fn remodulate<P: TonemapPrecision>(
     eps: f32,
     dst: &mut ViewMut<'_, P::Store>,
 ) -> Result<()> {
-    isa.check()?;
+    let chk = Checked::new(isa.check()?);
     check_modulate(src.shape(), albedo.shape(), dst.shape(), eps)?;
-    P::modulate_impl(isa, false, src, albedo, eps, dst);
+    P::modulate_impl(chk, false, src, albedo, eps, dst);
     Ok(())
 }

@@ -13,7 +13,10 @@
 //! registers, so each kernel plane is streamed exactly once.
 
 use crate::error::{check_scratch, check_shape, Result, Shape};
-use crate::precision::{sealed::Sealed, F16Arith, Fixed, Precision, F16, F32};
+use crate::precision::{
+    sealed::{Checked, Sealed},
+    F16Arith, Fixed, Precision, F16, F32,
+};
 use crate::view::{View, ViewMut};
 use crate::{check_kernel_size, Isa};
 
@@ -29,7 +32,7 @@ pub trait UnfoldPrecision: Precision + Sealed {
     fn scratch_len_impl(k: usize, channels: usize, width: usize) -> usize;
     #[doc(hidden)]
     fn apply_impl(
-        isa: Isa,
+        chk: Checked,
         k: usize,
         kernel: &View<'_, Self::Store>,
         src: &View<'_, Self::Store>,
@@ -46,7 +49,7 @@ macro_rules! float_unfold {
                 float::scratch_len::<<$p as Precision>::Store>(k, channels, width)
             }
             fn apply_impl(
-                isa: Isa,
+                chk: Checked,
                 k: usize,
                 kernel: &View<'_, Self::Store>,
                 src: &View<'_, Self::Store>,
@@ -54,7 +57,7 @@ macro_rules! float_unfold {
                 y0: usize,
                 scratch: &mut [f32],
             ) {
-                float::run::<_, $a>(isa, k, kernel, src, dst, y0, scratch)
+                float::run::<_, $a>(chk.isa(), k, kernel, src, dst, y0, scratch)
             }
         }
     };
@@ -68,7 +71,7 @@ impl UnfoldPrecision for Fixed {
         0
     }
     fn apply_impl(
-        isa: Isa,
+        chk: Checked,
         k: usize,
         kernel: &View<'_, i16>,
         src: &View<'_, i16>,
@@ -76,7 +79,7 @@ impl UnfoldPrecision for Fixed {
         y0: usize,
         _scratch: &mut [f32],
     ) {
-        fixed::run(isa, k, kernel, src, dst, y0)
+        fixed::run(chk.isa(), k, kernel, src, dst, y0)
     }
 }
 
@@ -111,7 +114,7 @@ pub fn apply_rows<P: UnfoldPrecision>(
     y0: usize,
     scratch: &mut [f32],
 ) -> Result<()> {
-    isa.check()?;
+    let chk = Checked::new(isa.check()?);
     check_kernel_size("unfold kernel size", k, MAX_KERNEL)?;
     let s = src.shape();
     check_shape("unfold kernel map", Shape::new(k * k, s.width, s.height), kernel.shape())?;
@@ -120,7 +123,7 @@ pub fn apply_rows<P: UnfoldPrecision>(
     if dst.height() == 0 || s.width == 0 || s.channels == 0 {
         return Ok(());
     }
-    P::apply_impl(isa, k, kernel, src, dst, y0, scratch);
+    P::apply_impl(chk, k, kernel, src, dst, y0, scratch);
     Ok(())
 }
 

@@ -94,7 +94,7 @@ pub(crate) fn scratch_len(level: u32) -> usize {
 
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn step<S: FloatElement, A: crate::real::Real>(
-    isa: Isa,
+    isa: crate::isa::Supported,
     level: u32,
     groups: usize,
     with_variance: bool,
@@ -106,11 +106,11 @@ pub(crate) fn step<S: FloatElement, A: crate::real::Real>(
     scratch: &mut [f32],
 ) {
     let ctx = Ctx::new(level, groups, with_variance, params, guides, src);
-    match isa {
+    match isa.isa() {
         // AVX-512 runs the AVX2 pair kernel: it does half the weight work of
         // the 16-lane per-tap kernel it replaced.
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: the caller checked support (AVX-512 implies AVX2/FMA/F16C
+        // SAFETY: `isa` is a `Supported` token: this CPU runs the ISA (AVX-512 implies AVX2/FMA/F16C
         // in `Isa`) and the scratch length.
         Isa::Avx2 | Isa::Avx512 if A::IS_F32 => unsafe { avx2::step(&ctx, dst, y0, scratch) },
         _ => {

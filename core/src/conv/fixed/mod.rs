@@ -16,19 +16,19 @@ pub(crate) mod avx2;
 pub(crate) mod avx512;
 
 pub(crate) fn forward(
-    isa: Isa,
+    isa: crate::isa::Supported,
     layer: &Conv2d<'_, i16>,
     src: &View<'_, i16>,
     dst: &mut ViewMut<'_, i16>,
     y0: usize,
     scratch: &mut [i32],
 ) {
-    match isa {
+    match isa.isa() {
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: the caller checked support.
+        // SAFETY: `isa` is a `Supported` token: this CPU runs the ISA.
         Isa::Avx2 => unsafe { avx2::forward(layer, src, dst, y0, scratch) },
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: the caller checked support; VNNI is probed here.
+        // SAFETY: `isa` is a `Supported` token: this CPU runs the ISA; VNNI is probed here.
         Isa::Avx512 => unsafe { avx512::forward(layer, src, dst, y0, scratch, crate::isa::avx512_vnni()) },
         _ => {
             let _ = scratch;

@@ -147,32 +147,32 @@ pub(crate) fn separable_scratch_len(sizes: &[usize], channels: usize, width: usi
 }
 
 pub(crate) fn fused<S: FloatElement>(
-    isa: Isa,
+    isa: crate::isa::Supported,
     path: WindowPath,
     inp: &FusedInputs<'_, S>,
     dst: &mut ViewMut<'_, S>,
     y0: usize,
     scratch: &mut [f32],
 ) {
-    match (isa, path) {
+    match (isa.isa(), path) {
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: the caller checked support.
+        // SAFETY: `isa` is a `Supported` token: this CPU runs the ISA.
         (Isa::Avx2 | Isa::Avx512, WindowPath::Direct) => unsafe { avx2::direct(inp, dst, y0) },
         #[cfg(target_arch = "x86_64")]
         (Isa::Avx2, WindowPath::BoxSum) => {
-            // SAFETY: the caller checked support.
+            // SAFETY: `isa` is a `Supported` token: this CPU runs the ISA.
             let ops = unsafe { avx2::Avx2Ops::new() };
             boxsum(&ops, inp, dst, y0, scratch)
         }
         #[cfg(target_arch = "x86_64")]
         (Isa::Avx512, WindowPath::BoxSum) => {
-            // SAFETY: the caller checked support.
+            // SAFETY: `isa` is a `Supported` token: this CPU runs the ISA.
             let ops = unsafe { avx512::Avx512Ops::new() };
             boxsum(&ops, inp, dst, y0, scratch)
         }
         #[cfg(target_arch = "x86_64")]
         (Isa::Avx2 | Isa::Avx512, WindowPath::Separable) => {
-            // SAFETY: the caller checked support (AVX-512 here implies AVX2, FMA and F16C).
+            // SAFETY: `isa` is a `Supported` token: this CPU runs the ISA (AVX-512 here implies AVX2, FMA and F16C).
             let ops = unsafe { avx2::Avx2Ops::new() };
             separable(&ops, inp, dst, y0, scratch)
         }
@@ -197,19 +197,25 @@ pub(crate) fn fused_scalar<S: FloatElement, A: Real>(
     }
 }
 
-pub(crate) fn kernels<S: FloatElement>(isa: Isa, k: usize, logits: &View<'_, S>, dst: &mut ViewMut<'_, S>, y0: usize) {
-    match isa {
+pub(crate) fn kernels<S: FloatElement>(
+    isa: crate::isa::Supported,
+    k: usize,
+    logits: &View<'_, S>,
+    dst: &mut ViewMut<'_, S>,
+    y0: usize,
+) {
+    match isa.isa() {
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: the caller checked support.
+        // SAFETY: `isa` is a `Supported` token: this CPU runs the ISA.
         Isa::Avx2 | Isa::Avx512 => unsafe { avx2::kernels(k, logits, dst, y0) },
         _ => scalar::kernels::<S, f32>(k, logits, dst, y0),
     }
 }
 
-pub(crate) fn channel<S: FloatElement>(isa: Isa, src: &View<'_, S>, dst: &mut ViewMut<'_, S>) {
-    match isa {
+pub(crate) fn channel<S: FloatElement>(isa: crate::isa::Supported, src: &View<'_, S>, dst: &mut ViewMut<'_, S>) {
+    match isa.isa() {
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: the caller checked support.
+        // SAFETY: `isa` is a `Supported` token: this CPU runs the ISA.
         Isa::Avx2 | Isa::Avx512 => unsafe { avx2::channel(src, dst) },
         _ => scalar::channel::<S, f32>(src, dst),
     }

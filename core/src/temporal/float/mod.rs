@@ -6,7 +6,6 @@ use super::{TemporalInputs, TemporalParams};
 use crate::precision::FloatElement;
 use crate::real::Real;
 use crate::view::{View, ViewMut};
-use crate::Isa;
 
 const MAX_C: usize = 4;
 
@@ -47,7 +46,7 @@ fn agrees<S: FloatElement, A: Real>(
 }
 
 pub(crate) fn accumulate<S: FloatElement, A: Real>(
-    _isa: Isa,
+    _isa: crate::isa::Supported,
     inp: &TemporalInputs<'_, S>,
     p: &TemporalParams,
     color: &mut ViewMut<'_, S>,

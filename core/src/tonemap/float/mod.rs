@@ -4,7 +4,6 @@ use super::Map;
 use crate::precision::FloatElement;
 use crate::real::Real;
 use crate::view::{View, ViewMut};
-use crate::Isa;
 
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod avx2;
@@ -33,13 +32,18 @@ pub(crate) fn modulate_row<S: FloatElement, A: Real>(
     }
 }
 
-pub(crate) fn map<S: FloatElement, A: Real>(isa: Isa, op: Map, src: &View<'_, S>, dst: &mut ViewMut<'_, S>) {
+pub(crate) fn map<S: FloatElement, A: Real>(
+    isa: crate::isa::Supported,
+    op: Map,
+    src: &View<'_, S>,
+    dst: &mut ViewMut<'_, S>,
+) {
     for c in 0..src.channels() {
         for y in 0..src.height() {
             let (s, d) = (src.row(c, y), dst.row_mut(c, y));
-            let done = match isa {
+            let done = match isa.isa() {
                 #[cfg(target_arch = "x86_64")]
-                // SAFETY: the caller checked support.
+                // SAFETY: `isa` is a `Supported` token: this CPU runs the ISA.
                 crate::Isa::Avx2 | crate::Isa::Avx512 if A::IS_F32 => unsafe { avx2::map_row(op, s, d) },
                 _ => 0,
             };
@@ -49,7 +53,7 @@ pub(crate) fn map<S: FloatElement, A: Real>(isa: Isa, op: Map, src: &View<'_, S>
 }
 
 pub(crate) fn modulate<S: FloatElement, A: Real>(
-    isa: Isa,
+    isa: crate::isa::Supported,
     divide: bool,
     src: &View<'_, S>,
     albedo: &View<'_, S>,
@@ -59,9 +63,9 @@ pub(crate) fn modulate<S: FloatElement, A: Real>(
     for c in 0..src.channels() {
         for y in 0..src.height() {
             let (s, a, d) = (src.row(c, y), albedo.row(c, y), dst.row_mut(c, y));
-            let done = match isa {
+            let done = match isa.isa() {
                 #[cfg(target_arch = "x86_64")]
-                // SAFETY: the caller checked support.
+                // SAFETY: `isa` is a `Supported` token: this CPU runs the ISA.
                 crate::Isa::Avx2 | crate::Isa::Avx512 if A::IS_F32 => unsafe {
                     avx2::modulate_row(divide, s, a, eps, d)
                 },

@@ -13,16 +13,16 @@ pub(crate) mod scalar;
 pub(crate) mod avx2;
 
 pub(crate) fn run(
-    isa: Isa,
+    isa: crate::isa::Supported,
     k: usize,
     kernel: &View<'_, i16>,
     src: &View<'_, i16>,
     dst: &mut ViewMut<'_, i16>,
     y0: usize,
 ) {
-    match isa {
+    match isa.isa() {
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: the caller checked support.
+        // SAFETY: `isa` is a `Supported` token: this CPU runs the ISA.
         Isa::Avx2 | Isa::Avx512 => unsafe { avx2::run(k, kernel, src, dst, y0) },
         _ => scalar::run(k, kernel, src, dst, y0),
     }

@@ -26,7 +26,7 @@ pub(crate) fn scratch_len<S: FloatElement>(k: usize, channels: usize, width: usi
 }
 
 pub(crate) fn run<S: FloatElement, A: crate::real::Real>(
-    isa: Isa,
+    isa: crate::isa::Supported,
     k: usize,
     kernel: &View<'_, S>,
     src: &View<'_, S>,
@@ -34,9 +34,9 @@ pub(crate) fn run<S: FloatElement, A: crate::real::Real>(
     y0: usize,
     scratch: &mut [f32],
 ) {
-    match isa {
+    match isa.isa() {
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: the caller checked `isa.is_supported()`.
+        // SAFETY: `isa` is a `Supported` token: this CPU runs the ISA.
         Isa::Avx2 if A::IS_F32 => unsafe { avx2::run(k, kernel, src, dst, y0, scratch) },
         #[cfg(target_arch = "x86_64")]
         // SAFETY: as above.
