@@ -198,11 +198,12 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
                         a.height = number("--size height", hs, 1, 8192)?;
                     }
                     "--only" => {
+                        let names = crate::registry::names();
                         for op in v.split(',') {
-                            if !crate::report::OPS.contains(&op) {
+                            if !names.contains(&op) {
                                 return Err(usage(format!(
                                     "--only: unknown operator '{op}' (one of {})",
-                                    crate::report::OPS.join(", ")
+                                    names.join(", ")
                                 )));
                             }
                             a.only.push(op.to_string());

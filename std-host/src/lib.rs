@@ -5,17 +5,26 @@
 //! `mcdenoise` CLI.
 
 pub mod aligned;
-pub mod cli;
 pub mod error;
 pub mod frame;
 pub mod methods;
 pub mod metrics;
-pub mod oracle;
 pub mod output;
 pub mod par;
 pub mod precision;
-pub mod report;
 pub mod run;
+
+// Not the library's API: the command line, the f64 oracle, the operator
+// registry and the precision report serve this workspace's binary, tests,
+// benches and fuzz targets, and may change with them.
+#[doc(hidden)]
+pub mod cli;
+#[doc(hidden)]
+pub mod oracle;
+#[doc(hidden)]
+pub mod registry;
+#[doc(hidden)]
+pub mod report;
 
 pub use error::{HostError, Result};
 pub use frame::{Buffer, Frame, Limits};

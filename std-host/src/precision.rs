@@ -86,6 +86,18 @@ pub trait HostPrecision:
     fn encode(src: &[f32], dst: &mut [Self::Store], frac: i8);
     /// Decodes storage into f32.
     fn decode(src: &[Self::Store], dst: &mut [f32], frac: i8);
+    /// f32 data as the storage type, without a copy, when that is f32.
+    fn borrow_f32(_d: &[f32]) -> Option<&[Self::Store]> {
+        None
+    }
+    /// Storage as f32, without a copy, when it is f32.
+    fn store_as_f32(_d: &[Self::Store]) -> Option<&[f32]> {
+        None
+    }
+    /// Storage as f16, without a copy, when it is f16.
+    fn store_as_f16(_d: &[Self::Store]) -> Option<&[half::f16]> {
+        None
+    }
 }
 
 impl HostPrecision for F32 {
@@ -94,6 +106,12 @@ impl HostPrecision for F32 {
     }
     fn decode(src: &[f32], dst: &mut [f32], _frac: i8) {
         dst.copy_from_slice(src);
+    }
+    fn borrow_f32(d: &[f32]) -> Option<&[f32]> {
+        Some(d)
+    }
+    fn store_as_f32(d: &[f32]) -> Option<&[f32]> {
+        Some(d)
     }
 }
 
@@ -111,6 +129,9 @@ impl HostPrecision for F16 {
             *d = s.to_f32();
         }
     }
+    fn store_as_f16(d: &[half::f16]) -> Option<&[half::f16]> {
+        Some(d)
+    }
 }
 
 impl HostPrecision for F16Arith {
@@ -119,6 +140,9 @@ impl HostPrecision for F16Arith {
     }
     fn decode(src: &[half::f16], dst: &mut [f32], frac: i8) {
         F16::decode(src, dst, frac)
+    }
+    fn store_as_f16(d: &[half::f16]) -> Option<&[half::f16]> {
+        Some(d)
     }
 }
 

@@ -8,7 +8,7 @@ use mcdenoise::methods::{self, MethodKind, Settings, Timings};
 use mcdenoise::metrics;
 use mcdenoise::precision::PrecisionKind;
 use mcdenoise_core::atrous::{self, AtrousGuides, AtrousParams};
-use mcdenoise_core::{Isa, F32};
+use mcdenoise_core::{Isa, View, ViewMut, F32};
 use mcdenoise_tests::{assert_close, assert_close32, isas_under_test, oracle, simd_isas, Img};
 use proptest::prelude::*;
 
@@ -444,5 +444,77 @@ fn single_estimate_mode_cleans_the_input() {
         let (_, psnr, rel) = evaluate(kind, &frame, r);
         eprintln!("{kind:?} without B: psnr {psnr:.2} relmse {rel:.5} (input {:.2} {:.5})", si.psnr, si.relmse);
         assert!(psnr > si.psnr + 4.0 && rel < si.relmse / 2.0, "{kind:?}: {psnr} dB, relMSE {rel}");
+    }
+}
+
+/// Values with many ties and both zeros (xorshift), for the median networks.
+fn tie_values(n: usize, seed: u64) -> Vec<f32> {
+    let mut s = seed.max(1);
+    (0..n)
+        .map(|_| {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            let v = ((s >> 40) % 11) as f32 - 5.0;
+            if v == 0.0 && s & 1 == 1 {
+                -0.0
+            } else {
+                v * 0.37
+            }
+        })
+        .collect()
+}
+
+/// The f32 median of the in-image 3x3 neighbourhood, by sorting.
+fn median_by_sort(p: &[f32], w: usize, h: usize, px: usize, py: usize, centre: bool) -> Option<f32> {
+    let mut vals = Vec::new();
+    for qy in py.saturating_sub(1)..(py + 2).min(h) {
+        for qx in px.saturating_sub(1)..(px + 2).min(w) {
+            if centre || (qy, qx) != (py, px) {
+                vals.push(p[qy * w + qx]);
+            }
+        }
+    }
+    vals.sort_unstable_by(f32::total_cmp);
+    let m = vals.len();
+    (m > 0).then(|| if m % 2 == 1 { vals[m / 2] } else { 0.5 * (vals[m / 2 - 1] + vals[m / 2]) })
+}
+
+/// The single-image noise estimates (sorting networks inside, sorts at the
+/// borders) equal a plain sort of every neighbourhood bit for bit, in bands.
+#[test]
+fn noise_estimates_equal_the_sorting_reference() {
+    use mcdenoise_core::atrous::noise;
+    for (w, h) in [(37, 23), (3, 3), (2, 5), (1, 1), (9, 1), (1, 7)] {
+        let n = w * h;
+        let img = tie_values(3 * n, (w * 31 + h) as u64);
+        let src = View::new(&img, 3, w, h).unwrap();
+        let mut got = vec![f32::NAN; n];
+        // Two bands: rows 0..h/2 and h/2..h.
+        let mid = h / 2;
+        {
+            let (top, bottom) = ViewMut::new(&mut got, 1, w, h).unwrap().split_rows_at(mid);
+            let (mut top, mut bottom) = (top, bottom);
+            noise::local_noise_rows(&src, &mut top, 0).unwrap();
+            noise::local_noise_rows(&src, &mut bottom, mid).unwrap();
+        }
+        let mut med = vec![f32::NAN; n];
+        noise::median3_rows(&View::new(&got, 1, w, h).unwrap(), &mut ViewMut::new(&mut med, 1, w, h).unwrap(), 0)
+            .unwrap();
+        for py in 0..h {
+            for px in 0..w {
+                let mut s = 0.0f32;
+                for c in 0..3 {
+                    let p = &img[c * n..(c + 1) * n];
+                    if let Some(m) = median_by_sort(p, w, h, px, py, false) {
+                        let d = p[py * w + px] - m;
+                        s += 0.84 * d * d;
+                    }
+                }
+                assert_eq!(got[py * w + px], s / 3.0, "local noise {w}x{h} at ({px}, {py})");
+                let m9 = 1.27 * median_by_sort(&got, w, h, px, py, true).unwrap();
+                assert_eq!(med[py * w + px], m9, "median3 {w}x{h} at ({px}, {py})");
+            }
+        }
     }
 }

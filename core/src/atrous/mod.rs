@@ -62,6 +62,7 @@ use crate::Isa;
 
 pub(crate) mod fixed;
 pub(crate) mod float;
+pub mod noise;
 mod sure;
 
 pub use sure::{sure_levels_scratch_len, sure_scratch_len, sure_shrink, sure_shrink_levels, MAX_SURE_LEVELS};

@@ -1,0 +1,381 @@
+//! `atrous` (edge-avoiding à-trous, 5 levels) and `sure-atrous` (the same
+//! levels with SURE shrinkage of the detail coefficients).
+//!
+//! When the frame carries the second estimate `B.*`, both methods filter the
+//! mean `M = (A + B) / 2` of the two estimates (so they see the same samples),
+//! and the noise comes from the frame itself:
+//! - noise variance of the input per pixel: `v = |A - B|^2 / 4` (the variance
+//!   of `M`, unbiased for independent `A`, `B`), mean over channels, 3x3 box;
+//! - `sure-atrous` filters `M` and `H = (A - B) / 2` with the *same* weights
+//!   (guided by `M`, so the levels of `M` are exactly the baseline's); the
+//!   detail of `M` is `D_M` and its noise variance `|D_H|^2` (which equals
+//!   `|D_A - D_B|^2 / 4`: the filter is linear).
+//!   That is an unbiased, per-pixel, per-level estimate of the detail noise
+//!   with no model of the filter's effective kernel.
+//!
+//! Without `B.*` the input's noise variance is estimated locally,
+//! `0.84 |y - median of the 8 neighbours|^2` (about unbiased for white noise
+//! on a locally flat signal, and blind to a single edge), then a 3x3 median
+//! (scaled to the mean for white noise); `sure-atrous` then propagates it through the
+//! levels with the squared normalised weights (as SVGF does) and takes
+//! `Var(D_i) = Var(c_i) (1 - 2 w_centre) + Var(c_{i+1})` per channel.
+//!
+//! The SURE of linear shrinkage is summed over a 5x5 window and the three
+//! channels; [`mcdenoise_core::atrous::sure_pick`] picks per pixel and level
+//! from {0, 0.2, 0.4, 0.6, 0.8, 1}. With albedo, everything runs on
+//! demodulated irradiance `c / (albedo + 0.001)`.
+
+use std::marker::PhantomData;
+
+use mcdenoise_core::atrous::{self, noise, AtrousGuides, AtrousParams, SureSource, SURE_CANDIDATES};
+use mcdenoise_core::softmax::{self, WindowPath};
+use mcdenoise_core::tonemap;
+use mcdenoise_core::{View, ViewMut};
+
+use super::{Ctx, Denoiser, Plan, Timings};
+use crate::error::{HostError, Result};
+use crate::frame::{Buffer, Frame};
+use crate::precision::{HostPrecision, Kind, Planes};
+
+mod plan;
+mod prepare;
+
+use prepare::{prepare, Bufs};
+
+/// Albedo epsilon of (de)modulation.
+pub const ALBEDO_EPS: f32 = 1e-3;
+/// Levels (hole spacings 1, 2, 4, 8, 16).
+pub const LEVELS: u32 = 5;
+/// Radius of the box the noise variance estimate is smoothed with (3x3, as SVGF).
+pub const NOISE_RADIUS: usize = 1;
+/// Tangent-plane tolerance as a fraction of the scene scale.
+pub const PLANE_TOLERANCE: f32 = 0.005;
+
+/// The à-trous methods.
+pub struct Atrous<P: HostPrecision> {
+    name: &'static str,
+    plan: Plan,
+    sure: bool,
+    pair: bool,
+    demod: bool,
+    use_normal: bool,
+    use_position: bool,
+    use_depth: bool,
+    params: AtrousParams,
+    bufs: Option<Bufs<P::Store>>,
+    _p: PhantomData<P>,
+}
+
+/// Runs a core kernel over bands of `dst` on the context's threads.
+fn bands<T: Send>(
+    ctx: &mut Ctx,
+    dst: ViewMut<'_, T>,
+    align: usize,
+    scratch_len: usize,
+    f: impl Fn(&mut ViewMut<'_, T>, usize, &mut [f32]) -> mcdenoise_core::Result<()> + Sync,
+) -> Result<()> {
+    Ok(ctx.pool.bands(dst, align, &mut ctx.scratch, scratch_len, f)?)
+}
+
+/// Normalised box average over a `2r+1` window of the `channels` planes of
+/// `src` into `out` (the importance filter with all logits equal).
+#[allow(clippy::too_many_arguments)]
+fn box_average(
+    ctx: &mut Ctx,
+    src: &[f32],
+    zeros: &[f32],
+    channels: usize,
+    w: usize,
+    h: usize,
+    r: usize,
+    out: &mut [f32],
+) -> Result<()> {
+    let (k, isa) = (2 * r + 1, ctx.isa);
+    let len = softmax::window_scratch_len::<mcdenoise_core::F32>(WindowPath::BoxSum, k, channels, w);
+    let sv = View::new(src, channels, w, h)?;
+    let zv = View::new(zeros, channels, w, h)?;
+    bands(ctx, ViewMut::new(out, channels, w, h)?, 48, len, |band, y0, s| {
+        softmax::window_filter::<mcdenoise_core::F32>(isa, WindowPath::BoxSum, k, &zv, &sv, band, y0, s)
+    })
+}
+
+/// f32 data in the pipeline's storage: borrowed when that is f32, else encoded.
+enum Held<'a, T: bytemuck::Pod> {
+    Borrowed(&'a [T]),
+    Owned(Planes<T>),
+}
+
+impl<'a, T: bytemuck::Pod + Default> Held<'a, T> {
+    fn new<P: HostPrecision<Store = T>>(d: &'a [f32], ch: usize, w: usize, h: usize, kind: Kind) -> Self {
+        match P::borrow_f32(d) {
+            Some(s) => Held::Borrowed(s),
+            None => Held::Owned(Planes::encode_as::<P>(ch, w, h, d, kind)),
+        }
+    }
+    fn view(&self, ch: usize, w: usize, h: usize) -> View<'_, T> {
+        match self {
+            Held::Borrowed(s) => View::new(s, ch, w, h).expect("shape"),
+            Held::Owned(p) => p.view(),
+        }
+    }
+    fn frac(&self) -> i8 {
+        match self {
+            Held::Borrowed(_) => 0,
+            Held::Owned(p) => p.frac,
+        }
+    }
+    fn data(&self) -> &[T] {
+        match self {
+            Held::Borrowed(s) => s,
+            Held::Owned(p) => &p.data[..],
+        }
+    }
+}
+
+/// Every level's SURE shrinkage and the reconstruction `c_N + sum beta_i
+/// D_i` into `out` (3 planes), in bands, one pass over the level images
+/// (`images[0]` the first level's input, then each level's output: data,
+/// planes, fixed-point format). Storage other than f32 and f16 (fixed point)
+/// is decoded to f32 first.
+fn shrink_levels<P: HostPrecision>(
+    ctx: &mut Ctx,
+    source: SureSource,
+    images: &[(&[P::Store], usize, i8)],
+    out: &mut [f32],
+    w: usize,
+    h: usize,
+) -> Result<()> {
+    let isa = ctx.isa;
+    let len = atrous::sure_levels_scratch_len(images.len() - 1, w);
+    let ov = ViewMut::new(out, 3, w, h)?;
+    macro_rules! go {
+        ($data:expr) => {{
+            let views = images
+                .iter()
+                .zip($data)
+                .map(|(&(_, c, _), d)| View::new(d, c, w, h))
+                .collect::<std::result::Result<Vec<_>, _>>()?;
+            bands(ctx, ov, 1, len, |band, y0, s| {
+                atrous::sure_shrink_levels(isa, source, &SURE_CANDIDATES, &views, band, y0, s)
+            })
+        }};
+    }
+    let f32s: Option<Vec<&[f32]>> = images.iter().map(|&(d, _, _)| P::store_as_f32(d)).collect();
+    let f16s: Option<Vec<&[half::f16]>> = images.iter().map(|&(d, _, _)| P::store_as_f16(d)).collect();
+    if let Some(d) = f32s {
+        go!(d)
+    } else if let Some(d) = f16s {
+        go!(d)
+    } else {
+        let decoded: Vec<Vec<f32>> = images
+            .iter()
+            .map(|&(d, _, frac)| {
+                let mut v = vec![0.0f32; d.len()];
+                P::decode(d, &mut v, frac);
+                v
+            })
+            .collect();
+        go!(decoded.iter().map(|v| &v[..]))
+    }
+}
+
+impl<P: HostPrecision> Denoiser for Atrous<P> {
+    fn name(&self) -> &'static str {
+        self.name
+    }
+    fn plan(&self) -> &Plan {
+        &self.plan
+    }
+    fn denoise(&mut self, f: &Frame, ctx: &mut Ctx, t: &mut Timings) -> Result<Vec<f32>> {
+        let (w, h) = (f.width, f.height);
+        let n = w * h;
+        let need = |b: Buffer, on: bool| -> Result<Option<&[f32]>> {
+            if !on {
+                return Ok(None);
+            }
+            f.get(b)
+                .map(Some)
+                .ok_or_else(|| HostError::bad(&f.path, format!("lacks {} channels the first frame had", b.name())))
+        };
+        let a = f.require(Buffer::Color, self.name)?;
+        let b = need(Buffer::ColorB, self.pair)?;
+        let albedo = need(Buffer::Albedo, self.demod)?;
+        let normal = need(Buffer::Normal, self.use_normal)?;
+        let position = need(Buffer::Position, self.use_position)?;
+        let depth = need(Buffer::Depth, self.use_depth)?;
+        // Level images: [M, H] (sure with a pair), [M] or [A] otherwise, +
+        // variance (sure, single); a level's output adds the filtered
+        // variance and the centre weight (sure, single).
+        let sure_pair = self.sure && self.pair;
+        let sure_single = self.sure && !self.pair;
+        let groups = if sure_pair { 2 } else { 1 };
+        let nsrc = 3 * groups + usize::from(sure_single);
+        let nout = 3 * groups + 2 * usize::from(sure_single);
+        let bufs = match self.bufs.take() {
+            Some(bf) if bf.n == n && bf.ping.width == w && bf.ping.channels == nout => bf,
+            _ => Bufs::new(w, h, nsrc, nout, self.sure),
+        };
+        let mut bf = bufs;
+        let result = self.run(f, ctx, t, &mut bf, (a, b, albedo, normal, position, depth), (groups, nsrc, nout));
+        self.bufs = Some(bf);
+        result
+    }
+}
+
+/// The frame's buffers a run reads.
+type Inputs<'a> =
+    (&'a [f32], Option<&'a [f32]>, Option<&'a [f32]>, Option<&'a [f32]>, Option<&'a [f32]>, Option<&'a [f32]>);
+
+impl<P: HostPrecision> Atrous<P> {
+    #[allow(clippy::type_complexity)]
+    fn run(
+        &self,
+        f: &Frame,
+        ctx: &mut Ctx,
+        t: &mut Timings,
+        bf: &mut Bufs<P::Store>,
+        (a, b, albedo, normal, position, depth): Inputs<'_>,
+        (groups, nsrc, nout): (usize, usize, usize),
+    ) -> Result<Vec<f32>> {
+        let (w, h) = (f.width, f.height);
+        let n = w * h;
+        let sure_pair = self.sure && self.pair;
+        let sure_single = self.sure && !self.pair;
+        t.time("prepare", || prepare(ctx, n, a, b, albedo, sure_pair, &mut bf.c0, &mut bf.noise_raw));
+        // Noise variance of the filtered input, per pixel.
+        t.time("noise estimate", || -> Result<()> {
+            if b.is_some() {
+                box_average(ctx, &bf.noise_raw, &bf.zeros, 1, w, h, NOISE_RADIUS, &mut bf.noise)
+            } else {
+                local_noise(ctx, &bf.c0[..3 * n], w, h, &mut bf.noise_raw)?;
+                // A 3x3 median, not a box: where the local estimate mistook an
+                // edge for noise, those pixels are a minority of the window.
+                median3(ctx, &bf.noise_raw, w, h, &mut bf.noise)
+            }
+        })?;
+        if sure_single {
+            bf.c0[3 * n..4 * n].copy_from_slice(&bf.noise);
+        }
+        // The guides and the level-0 images in the storage precision (the
+        // frame's own f32 data when that is the precision).
+        let (noise_g, normal_g, position_g, depth_g, c0) = t.time("guides", || {
+            (
+                Held::new::<P>(&bf.noise, 1, w, h, Kind::Plain),
+                normal.map(|d| Held::new::<P>(d, 3, w, h, Kind::Unit)),
+                position.map(|d| Held::new::<P>(d, 3, w, h, Kind::Plain)),
+                depth.map(|d| Held::new::<P>(d, 1, w, h, Kind::Plain)),
+                Held::new::<P>(&bf.c0, nsrc, w, h, Kind::Image),
+            )
+        });
+        let guides = AtrousGuides {
+            noise: noise_g.view(1, w, h),
+            normal: normal_g.as_ref().map(|p| p.view(3, w, h)),
+            position: position_g.as_ref().map(|p| p.view(3, w, h)),
+            depth: depth_g.as_ref().map(|p| p.view(1, w, h)),
+        };
+        let (isa, params) = (ctx.isa, self.params);
+        let source = if sure_pair { SureSource::Pair } else { SureSource::Single };
+        let frac = c0.frac();
+        bf.ping.frac = frac;
+        bf.pong.frac = frac;
+        let mut out = vec![0.0f32; 3 * n];
+        // What remodulation reads when there is albedo (else the result is
+        // already in `out`).
+        let base: Option<&[f32]> = if self.sure {
+            // Every level's output kept, then one pass of shrinkage and
+            // reconstruction (c_N + the kept detail) over all of them.
+            for l in &mut bf.levels {
+                l.frac = frac;
+            }
+            for level in 0..LEVELS {
+                let (done, rest) = bf.levels.split_at_mut(level as usize);
+                let cv = match done.last() {
+                    None => c0.view(nsrc, w, h),
+                    Some(prev) => prev.view().channels_range(0, nsrc)?,
+                };
+                let dv = rest[0].view_mut();
+                t.time("a-trous levels", || {
+                    bands(ctx, dv, 1, atrous::step_scratch_len::<P>(level), |band, y0, s| {
+                        atrous::step::<P>(isa, level, groups, sure_single, &params, &guides, &cv, band, y0, s)
+                    })
+                })?;
+            }
+            let mut images = vec![(c0.data(), nsrc, frac)];
+            images.extend(bf.levels.iter().map(|l| (&l.data[..], nout, frac)));
+            let sum = if albedo.is_some() { &mut bf.out[..] } else { &mut out[..] };
+            t.time("SURE shrinkage + reconstruct", || shrink_levels::<P>(ctx, source, &images, sum, w, h))?;
+            albedo.map(|_| &bf.out[..])
+        } else {
+            let (mut src, mut dst) = (&mut bf.ping, &mut bf.pong);
+            for level in 0..LEVELS {
+                // Level 0 reads the prepared images; later levels the previous
+                // output's first nsrc planes.
+                let cv = if level == 0 { c0.view(nsrc, w, h) } else { src.view().channels_range(0, nsrc)? };
+                let dv = dst.view_mut();
+                t.time("a-trous levels", || {
+                    bands(ctx, dv, 1, atrous::step_scratch_len::<P>(level), |band, y0, s| {
+                        atrous::step::<P>(isa, level, groups, sure_single, &params, &guides, &cv, band, y0, s)
+                    })
+                })?;
+                debug_assert_eq!(dst.channels, nout);
+                std::mem::swap(&mut src, &mut dst);
+            }
+            // c_N of the first image (the last output, now in src), then
+            // remodulated: read in place when the level output is f32, else
+            // decoded into `bf.out` (or the output) first.
+            let last = src;
+            match P::store_as_f32(&last.data[..3 * n]).filter(|_| albedo.is_some()) {
+                Some(c) => Some(c),
+                None => {
+                    t.time("reconstruct", || {
+                        let sum = if albedo.is_some() { &mut bf.out[..] } else { &mut out[..] };
+                        let (data, frac) = (&last.data[..3 * n], last.frac);
+                        // Runs of whole rows in parallel (a serial pass was 2 ms of a 2-thread frame).
+                        ctx.pool.planes(vec![sum], w * 32, |start, runs| {
+                            let o = &mut *runs[0];
+                            let src = &data[start..start + o.len()];
+                            match P::store_as_f32(src) {
+                                Some(c) => o.copy_from_slice(c),
+                                None => P::decode(src, o, frac),
+                            }
+                        });
+                    });
+                    albedo.map(|_| &bf.out[..])
+                }
+            }
+        };
+        if let (Some(al), Some(base)) = (albedo, base) {
+            t.time("remodulate", || -> Result<()> {
+                let (sv, av) = (View::new(base, 3, w, h)?, View::new(al, 3, w, h)?);
+                bands(ctx, ViewMut::new(&mut out, 3, w, h)?, 1, 0, |band, y0, _| {
+                    let rows = band.height();
+                    tonemap::remodulate::<mcdenoise_core::F32>(
+                        isa,
+                        &sv.rows(y0, rows)?,
+                        &av.rows(y0, rows)?,
+                        ALBEDO_EPS,
+                        band,
+                    )
+                })
+            })?;
+        }
+        // The output passes through the pipeline's storage precision.
+        if P::borrow_f32(&out).is_none() {
+            out = Planes::<P::Store>::encode::<P>(3, w, h, &out).decode::<P>();
+        }
+        Ok(out)
+    }
+}
+
+/// The local noise variance of the single estimate `y` (3 planes) into `v`
+/// (core's [`noise::local_noise_rows`]), in bands.
+fn local_noise(ctx: &mut Ctx, y: &[f32], w: usize, h: usize, v: &mut [f32]) -> Result<()> {
+    let src = View::new(y, 3, w, h)?;
+    bands(ctx, ViewMut::new(v, 1, w, h)?, 1, 0, |band, y0, _| noise::local_noise_rows(&src, band, y0))
+}
+
+/// The scaled 3x3 median of `v` into `out` (core's [`noise::median3_rows`]), in bands.
+fn median3(ctx: &mut Ctx, v: &[f32], w: usize, h: usize, out: &mut [f32]) -> Result<()> {
+    let src = View::new(v, 1, w, h)?;
+    bands(ctx, ViewMut::new(out, 1, w, h)?, 1, 0, |band, y0, _| noise::median3_rows(&src, band, y0))
+}

@@ -1,0 +1,133 @@
+//! The buffers a sequence keeps, and the first pass over a frame:
+//! demodulation and, with a second estimate, the mean, half-difference and
+//! raw noise of the pair.
+
+use super::{ALBEDO_EPS, LEVELS};
+use crate::aligned::Aligned;
+use crate::methods::Ctx;
+use crate::precision::Planes;
+
+/// Buffers kept across the frames of a sequence. Once warm, an f32 run
+/// allocates no image-sized buffer per frame besides its output (the guides
+/// and level-0 images are the frame's own data): about 2 KB of bookkeeping
+/// (band lists, the thread pool's jobs). The other precisions store the
+/// guides and the level-0 images anew each frame (about 35 bytes a pixel
+/// for f16). `tests/tests/load.rs` measures both and holds f32 to it.
+pub(super) struct Bufs<T: bytemuck::Pod> {
+    pub(super) n: usize,
+    /// Level-0 images in f32: `[M]`, `[M, H]` or `[A, variance]`.
+    pub(super) c0: Aligned<f32>,
+    /// Raw and smoothed noise variance.
+    pub(super) noise_raw: Aligned<f32>,
+    pub(super) noise: Aligned<f32>,
+    pub(super) zeros: Aligned<f32>,
+    /// Level outputs, alternating (`atrous`).
+    pub(super) ping: Planes<T>,
+    pub(super) pong: Planes<T>,
+    /// Every level's output (`sure-atrous`: the shrinkage reads them all in
+    /// one pass after the levels).
+    pub(super) levels: Vec<Planes<T>>,
+    pub(super) out: Aligned<f32>,
+}
+
+impl<T: bytemuck::Pod + Default> Bufs<T> {
+    pub(super) fn new(w: usize, h: usize, nsrc: usize, nout: usize, sure: bool) -> Self {
+        let n = w * h;
+        // `sure-atrous` keeps every level's output instead of two.
+        let (rows, kept) = if sure { (0, LEVELS as usize) } else { (h, 0) };
+        Bufs {
+            n,
+            c0: Aligned::zeroed(nsrc * n),
+            noise_raw: Aligned::zeroed(n),
+            noise: Aligned::zeroed(n),
+            zeros: Aligned::zeroed(n),
+            ping: Planes::new(nout, w, rows),
+            pong: Planes::new(nout, w, rows),
+            levels: (0..kept).map(|_| Planes::new(nout, w, h)).collect(),
+            out: Aligned::zeroed(3 * n),
+        }
+    }
+}
+
+/// Pixels per job of the per-pixel passes.
+const RUN: usize = 1 << 14;
+
+/// Demodulates `a` (and `b`) and forms the level-0 images: with `b`, the
+/// mean `M` (and, for `half_diff`, `H = (A - B) / 2`) and the raw noise
+/// `|A - B|^2 / 12` (the variance of `M`, mean over channels); without it,
+/// `A` itself.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn prepare(
+    ctx: &Ctx,
+    n: usize,
+    a: &[f32],
+    b: Option<&[f32]>,
+    albedo: Option<&[f32]>,
+    half_diff: bool,
+    c0: &mut [f32],
+    noise: &mut [f32],
+) {
+    let imgs = if b.is_some() && half_diff { 6 } else { 3 };
+    let mut planes: Vec<&mut [f32]> = c0.chunks_mut(n).take(imgs).collect();
+    planes.push(noise);
+    ctx.pool.planes(planes, RUN, |s, runs| {
+        let (img, nz) = runs.split_at_mut(imgs);
+        let nz = &mut *nz[0];
+        let len = nz.len();
+        // This run of channel `c` of a frame buffer.
+        fn seg(src: &[f32], c: usize, n: usize, s: usize, len: usize) -> &[f32] {
+            &src[c * n + s..c * n + s + len]
+        }
+        // Slices of one length and the albedo test hoisted out of the loops,
+        // so that the compiler may vectorise them (not checked in the
+        // assembly; the stage is near memory bandwidth either way).
+        match b {
+            Some(b) => {
+                nz.fill(0.0);
+                let (mean, half) = img.split_at_mut(3);
+                for (c, m) in mean.iter_mut().enumerate() {
+                    let (ac, bc) = (seg(a, c, n, s, len), seg(b, c, n, s, len));
+                    let mut h = half.get_mut(c).map(|v| &mut **v);
+                    let mut one = |i: usize, ai: f32, bi: f32| {
+                        m[i] = 0.5 * (ai + bi);
+                        if let Some(h) = h.as_deref_mut() {
+                            h[i] = 0.5 * (ai - bi);
+                        }
+                        let d = ai - bi;
+                        nz[i] += d * d;
+                    };
+                    match albedo {
+                        Some(al) => {
+                            let alc = seg(al, c, n, s, len);
+                            for i in 0..len {
+                                let q = alc[i] + ALBEDO_EPS;
+                                one(i, ac[i] / q, bc[i] / q);
+                            }
+                        }
+                        None => {
+                            for i in 0..len {
+                                one(i, ac[i], bc[i]);
+                            }
+                        }
+                    }
+                }
+                for v in nz.iter_mut() {
+                    *v /= 12.0; // |A - B|^2 / 4, mean of 3 channels
+                }
+            }
+            None => {
+                for (c, im) in img.iter_mut().enumerate() {
+                    let ac = seg(a, c, n, s, len);
+                    match albedo {
+                        Some(al) => {
+                            for ((o, &v), &q) in im.iter_mut().zip(ac).zip(seg(al, c, n, s, len)) {
+                                *o = v / (q + ALBEDO_EPS);
+                            }
+                        }
+                        None => im.copy_from_slice(ac),
+                    }
+                }
+            }
+        }
+    });
+}
