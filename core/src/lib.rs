@@ -64,6 +64,35 @@
 // SIMD loops index several parallel arrays by lane or channel.
 #![allow(clippy::needless_range_loop)]
 
+/// Runs the closure `body` compiled for the checked ISA: the same portable
+/// loops, vectorised by the compiler with that ISA's instructions (the
+/// backward passes' SIMD paths). No FMA contraction happens, so every ISA
+/// gives the scalar path's bits.
+macro_rules! versions {
+    ($isa:expr, $body:expr) => {{
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn avx2<R>(f: impl FnOnce() -> R) -> R {
+            f()
+        }
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl,avx2,fma")]
+        unsafe fn avx512<R>(f: impl FnOnce() -> R) -> R {
+            f()
+        }
+        let isa: $crate::isa::Supported = $isa;
+        match isa.isa() {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `isa` is a `Supported` token: this CPU runs the ISA.
+            $crate::Isa::Avx2 => unsafe { avx2($body) },
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: as above.
+            $crate::Isa::Avx512 => unsafe { avx512($body) },
+            _ => ($body)(),
+        }
+    }};
+}
+
 pub mod atrous;
 pub mod conv;
 pub mod error;

@@ -10,8 +10,8 @@
 //! pixels in twelve accumulator registers and streams the input once per
 //! block: each input vector feeds up to six FMAs and each broadcast weight two.
 //!
-//! The backward pass (input gradient and weight/bias gradients into caller
-//! buffers) comes with the training engine.
+//! The backward pass (f32: the activation's, the input's, the weights' and
+//! the bias's gradients into caller buffers) is in [`grad`].
 
 use crate::error::{check_scratch, Error, Result, Shape};
 use crate::precision::{
@@ -24,6 +24,7 @@ use crate::Isa;
 
 pub(crate) mod fixed;
 pub(crate) mod float;
+pub mod grad;
 
 /// Supported kernel sizes.
 pub const KERNEL_SIZES: [usize; 3] = [1, 3, 5];

@@ -24,6 +24,7 @@ use crate::Isa;
 
 pub(crate) mod fixed;
 pub(crate) mod float;
+pub mod grad;
 
 /// The coarse size of a fine size: `ceil(n / 2)`.
 pub const fn coarse(n: usize) -> usize {

@@ -47,6 +47,7 @@ use crate::{check_kernel_size, Isa};
 
 pub(crate) mod fixed;
 pub(crate) mod float;
+pub mod grad;
 
 /// Largest window size.
 pub const MAX_WINDOW: usize = 15;

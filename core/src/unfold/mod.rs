@@ -22,6 +22,7 @@ use crate::{check_kernel_size, Isa};
 
 pub(crate) mod fixed;
 pub(crate) mod float;
+pub mod grad;
 
 /// Largest kernel size.
 pub const MAX_KERNEL: usize = 15;

@@ -1,0 +1,523 @@
+//! Backward passes of the softmax operators (f32), and the sigmoid.
+//!
+//! - [`channel_softmax_grad`]: `dx_i = y_i (dy_i - sum_j y_j dy_j)`.
+//! - [`sigmoid`] and [`sigmoid_grad`]: `y = 1 / (1 + e^-x)`, `dx = dy y (1 - y)`.
+//! - [`fused_filter_grad`]: the gradients of the fused importance filter
+//!   (WSKP eq. 5, [`super::fused_filter`]) for its importance logits, its
+//!   fusion logits and its radiance, given the gradient `G` of its output.
+//!
+//! ## The fused filter's gradient
+//! With `out_c(p) = a_c(p) sum_k alpha_k(p) R_kc(p)`,
+//! `R_kc(p) = sum_{q in W_k(p)} w_kp(q) c_c(q)` and the window's softmax
+//! weights `w_kp(q) = e_k(q) / D_k(p)`, `e_k = exp(I_k)`:
+//! - `dI_k(q) = sum_{p: q in W_k(p)} sum_c g_kc(p) w_kp(q) (c_c(q) - R_kc(p))`,
+//! - `dc_c(q) = sum_k sum_{p: q in W_k(p)} g_kc(p) w_kp(q)`,
+//! - `dF_k(p) = alpha_k (d_k - sum_j alpha_j d_j)` with `d_k = sum_c G_c a_c R_kc`,
+//!
+//! where `g_kc = G_c a_c alpha_k`. Shifting every `e_k` of a region by the
+//! region's largest logit changes no `w` (it cancels in the ratio), and then
+//! `w_kp(q) = e'(q) / D'(p)` with `e' <= 1`, so the sums over `p` are box
+//! sums: `dI_k(q) = e'(q) (sum_c c_c(q) U_kc(q) - V_k(q))` and
+//! `dc_c(q) += e'(q) U_kc(q)`, with `U_kc` the window sum of `g_kc / D'` and
+//! `V_k` that of `sum_c g_kc R_kc / D'`. Cost per pixel does not grow with
+//! `k` beyond the `2k` adds of each separable window sum.
+//!
+//! The regions are the tiles of a fixed grid ([`GRAD_TILE_H`] x
+//! [`GRAD_TILE_W`] output pixels; the shift is the largest logit of the tile
+//! and its `2r` halo), so the result does not depend on how the rows are cut
+//! into bands. A window whose shifted denominator falls below
+//! [`GRAD_TINY`] (its logits lie more than ~41 nats under the region's
+//! largest) is computed directly with its own maximum as the shift, its
+//! terms added to the `q` of the band one by one: no overflow, no `0 / 0`,
+//! for any logit (clamped to `±LOGIT_LIMIT`, NaN weighing 0 as in the
+//! forward pass).
+//!
+//! Every path compiles the same loops for its ISA (the compiler vectorises
+//! them), so the gradients are the same bits on every ISA.
+
+use crate::error::{check_scratch, check_shape, Error, Result, Shape};
+use crate::math::scalar::exp;
+use crate::softmax::{FusedInputs, LOGIT_LIMIT, MAX_CHANNELS, MAX_FUSED, MAX_WINDOW};
+use crate::unfold::check_band;
+use crate::view::{View, ViewMut};
+use crate::Isa;
+
+/// `dx_i = y_i (dy_i - sum_j y_j dy_j)` per pixel over the channels: `y` the
+/// softmax's output, `dy` its gradient, all three one shape.
+pub fn channel_softmax_grad(isa: Isa, y: &View<'_, f32>, dy: &View<'_, f32>, dx: &mut ViewMut<'_, f32>) -> Result<()> {
+    let isa = isa.check()?;
+    check_shape("softmax gradient", y.shape(), dy.shape())?;
+    check_shape("softmax input gradient", y.shape(), dx.shape())?;
+    let n = y.channels();
+    versions!(isa, || {
+        for r in 0..y.height() {
+            for x in 0..y.width() {
+                let mut dot = 0.0f32;
+                for c in 0..n {
+                    dot += y.row(c, r)[x] * dy.row(c, r)[x];
+                }
+                for c in 0..n {
+                    let yv = y.row(c, r)[x];
+                    dx.row_mut(c, r)[x] = yv * (dy.row(c, r)[x] - dot);
+                }
+            }
+        }
+    });
+    Ok(())
+}
+
+/// `y = 1 / (1 + e^-x)` element by element (0 for NaN).
+pub fn sigmoid(isa: Isa, x: &View<'_, f32>, y: &mut ViewMut<'_, f32>) -> Result<()> {
+    let isa = isa.check()?;
+    check_shape("sigmoid output", x.shape(), y.shape())?;
+    versions!(isa, || {
+        for c in 0..x.channels() {
+            for r in 0..x.height() {
+                for (o, &v) in y.row_mut(c, r).iter_mut().zip(x.row(c, r)) {
+                    // Both halves through e^-|x| <= 1, so nothing overflows.
+                    *o = if v >= 0.0 {
+                        1.0 / (1.0 + exp(-v))
+                    } else if v < 0.0 {
+                        let e = exp(v);
+                        e / (1.0 + e)
+                    } else {
+                        0.0
+                    };
+                }
+            }
+        }
+    });
+    Ok(())
+}
+
+/// `dx = dy y (1 - y)` from the sigmoid's output `y`.
+pub fn sigmoid_grad(isa: Isa, y: &View<'_, f32>, dy: &View<'_, f32>, dx: &mut ViewMut<'_, f32>) -> Result<()> {
+    let isa = isa.check()?;
+    check_shape("sigmoid gradient", y.shape(), dy.shape())?;
+    check_shape("sigmoid input gradient", y.shape(), dx.shape())?;
+    versions!(isa, || {
+        for c in 0..y.channels() {
+            for r in 0..y.height() {
+                let (yr, gr) = (y.row(c, r), dy.row(c, r));
+                for ((o, &yv), &g) in dx.row_mut(c, r).iter_mut().zip(yr).zip(gr) {
+                    *o = g * yv * (1.0 - yv);
+                }
+            }
+        }
+    });
+    Ok(())
+}
+
+/// Rows of the fused gradient's tile grid.
+pub const GRAD_TILE_H: usize = 32;
+/// Columns of the fused gradient's tile grid.
+pub const GRAD_TILE_W: usize = 256;
+/// A shifted window denominator below this (2^-60) is recomputed with the
+/// window's own shift.
+pub const GRAD_TINY: f32 = 8.673_617e-19;
+
+/// The gradients [`fused_filter_grad`] writes: rows `y0 ..` of each.
+pub struct FusedGrads<'a, 'b> {
+    /// `M` planes: the importance logits' gradient.
+    pub importance: &'a mut ViewMut<'b, f32>,
+    /// `M` planes: the fusion logits' gradient (`None` exactly when the
+    /// inputs have no fusion logits).
+    pub fusion: Option<&'a mut ViewMut<'b, f32>>,
+    /// The radiance's gradient (its channels).
+    pub radiance: &'a mut ViewMut<'b, f32>,
+}
+
+/// A rectangle of image pixels, stored row-major in a scratch region.
+#[derive(Clone, Copy, Debug)]
+struct Rect {
+    y0: usize,
+    y1: usize,
+    x0: usize,
+    x1: usize,
+}
+
+impl Rect {
+    fn grow(self, r: usize, w: usize, h: usize) -> Rect {
+        Rect {
+            y0: self.y0.saturating_sub(r),
+            y1: (self.y1 + r).min(h),
+            x0: self.x0.saturating_sub(r),
+            x1: (self.x1 + r).min(w),
+        }
+    }
+    fn w(&self) -> usize {
+        self.x1 - self.x0
+    }
+    #[inline(always)]
+    fn at(&self, y: usize, x: usize) -> usize {
+        (y - self.y0) * self.w() + (x - self.x0)
+    }
+}
+
+/// The largest region a tile needs: its output rows and columns grown by
+/// `2 r_max` on every side.
+fn region_cap(width: usize) -> usize {
+    let g = 2 * (MAX_WINDOW - 1);
+    (GRAD_TILE_H + g) * (GRAD_TILE_W.min(width) + g)
+}
+
+/// Scratch words [`fused_filter_grad`] needs for images `width` wide with
+/// `channels` radiance channels and `m` sizes.
+pub fn fused_grad_scratch_len(m: usize, channels: usize, width: usize) -> usize {
+    // e', the horizontal sums (1 + C), D' and N (1 + C), R (C), u and v
+    // (C + 1), their horizontal and vertical sums (2 (C + 1)), alpha (M),
+    // d_k (M) and a fallback mask.
+    let planes = 1 + (1 + channels) + (1 + channels) + channels + 3 * (channels + 1) + 2 * m + 1;
+    planes.saturating_mul(region_cap(width))
+}
+
+#[inline(always)]
+fn logit(v: f32) -> f32 {
+    if v.is_nan() {
+        -LOGIT_LIMIT
+    } else {
+        v.max(-LOGIT_LIMIT).min(LOGIT_LIMIT)
+    }
+}
+
+/// The gradients of the fused importance filter (see the module) for output
+/// rows `y0 .. y0 + n`: `g` is the output's gradient (the radiance's channels,
+/// whole image), the inputs as [`super::fused_filter`] takes them (f32).
+pub fn fused_filter_grad(
+    isa: Isa,
+    inp: &FusedInputs<'_, f32>,
+    g: &View<'_, f32>,
+    out: FusedGrads<'_, '_>,
+    y0: usize,
+    scratch: &mut [f32],
+) -> Result<()> {
+    let isa = isa.check()?;
+    let m = inp.sizes.len();
+    let s = inp.radiance.shape();
+    let (c, w, h) = (s.channels, s.width, s.height);
+    if m == 0 || m > MAX_FUSED {
+        return Err(Error::BadParameter { what: "fused filter sizes", expected: "1 to MAX_FUSED window sizes" });
+    }
+    for &k in inp.sizes {
+        crate::check_kernel_size("fused filter window size", k, MAX_WINDOW)?;
+    }
+    if c == 0 || c > MAX_CHANNELS {
+        return Err(Error::BadParameter { what: "fused filter radiance", expected: "1 to 4 channels" });
+    }
+    let plane = |n| Shape::new(n, w, h);
+    check_shape("fused importance logits", plane(m), inp.importance.shape())?;
+    match (&inp.fusion, m) {
+        (Some(f), _) => check_shape("fused fusion logits", plane(m), f.shape())?,
+        (None, 1) => {}
+        (None, _) => {
+            return Err(Error::BadParameter { what: "fused fusion logits", expected: "present when mixing sizes" })
+        }
+    }
+    if let Some(a) = &inp.albedo {
+        check_shape("fused albedo", s, a.shape())?;
+    }
+    check_shape("fused output gradient", s, g.shape())?;
+    let n = out.importance.height();
+    check_band("fused importance gradient", plane(m), out.importance.shape(), y0)?;
+    check_band("fused radiance gradient", s, out.radiance.shape(), y0)?;
+    match (&out.fusion, &inp.fusion) {
+        (Some(f), Some(_)) => check_band("fused fusion gradient", plane(m), f.shape(), y0)?,
+        (None, None) => {}
+        _ => {
+            return Err(Error::BadParameter {
+                what: "fused fusion gradient",
+                expected: "present exactly when the inputs have fusion logits",
+            })
+        }
+    }
+    check_scratch(fused_grad_scratch_len(m, c, w), scratch.len())?;
+    if n == 0 || w == 0 {
+        return Ok(());
+    }
+    let FusedGrads { importance, fusion, radiance } = out;
+    versions!(isa, || {
+        let mut fusion = fusion;
+        let ty_first = y0 / GRAD_TILE_H * GRAD_TILE_H;
+        let mut ty = ty_first;
+        while ty < y0 + n {
+            let mut tx = 0;
+            while tx < w {
+                let tile = Rect { y0: ty, y1: (ty + GRAD_TILE_H).min(h), x0: tx, x1: (tx + GRAD_TILE_W).min(w) };
+                let q = Rect { y0: tile.y0.max(y0), y1: tile.y1.min(y0 + n), ..tile };
+                tile_grad(inp, g, tile, q, importance, fusion.as_deref_mut(), radiance, y0, scratch);
+                tx += GRAD_TILE_W;
+            }
+            ty += GRAD_TILE_H;
+        }
+    });
+    Ok(())
+}
+
+/// One tile's gradients for its rows `q` (inside the band starting at `y0`).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn tile_grad(
+    inp: &FusedInputs<'_, f32>,
+    g: &View<'_, f32>,
+    tile: Rect,
+    q: Rect,
+    d_imp: &mut ViewMut<'_, f32>,
+    d_fus: Option<&mut ViewMut<'_, f32>>,
+    d_rad: &mut ViewMut<'_, f32>,
+    y0: usize,
+    scratch: &mut [f32],
+) {
+    let (c, w, h) = (inp.radiance.channels(), inp.radiance.width(), inp.radiance.height());
+    let m = inp.sizes.len();
+    let cap = region_cap(w);
+    let (e, rest) = scratch.split_at_mut(cap);
+    let (hsum, rest) = rest.split_at_mut((1 + c) * cap);
+    let (dn, rest) = rest.split_at_mut((1 + c) * cap);
+    let (rr, rest) = rest.split_at_mut(c * cap);
+    let (uv, rest) = rest.split_at_mut((c + 1) * cap);
+    let (uvh, rest) = rest.split_at_mut((c + 1) * cap);
+    let (uvs, rest) = rest.split_at_mut((c + 1) * cap);
+    let (alpha, rest) = rest.split_at_mut(m * cap);
+    let (dk, rest) = rest.split_at_mut(m * cap);
+    let fallback = &mut rest[..cap];
+    let alb = |ch: usize, y: usize, x: usize| inp.albedo.as_ref().map_or(1.0, |a| a.row(ch, y)[x]);
+    // The fusion weights over q grown by the largest radius.
+    let rmax = inp.sizes.iter().max().copied().unwrap_or(1) / 2;
+    let pa = q.grow(rmax, w, h);
+    for y in pa.y0..pa.y1 {
+        for x in pa.x0..pa.x1 {
+            let i = pa.at(y, x);
+            match &inp.fusion {
+                None => alpha[i] = 1.0,
+                Some(f) => {
+                    let mut mx = f32::NEG_INFINITY;
+                    for k in 0..m {
+                        mx = mx.max(logit(f.row(k, y)[x]));
+                    }
+                    let mut sum = 0.0f32;
+                    for k in 0..m {
+                        let v = exp(logit(f.row(k, y)[x]) - mx);
+                        alpha[k * cap + i] = v;
+                        sum += v;
+                    }
+                    for k in 0..m {
+                        alpha[k * cap + i] /= sum;
+                    }
+                }
+            }
+        }
+    }
+    // Zero the outputs of q before the sizes add into them.
+    for y in q.y0..q.y1 {
+        for ch in 0..c {
+            d_rad.row_mut(ch, y - y0)[q.x0..q.x1].fill(0.0);
+        }
+    }
+    for (kk, &k) in inp.sizes.iter().enumerate() {
+        let r = k / 2;
+        let p = q.grow(r, w, h);
+        let er = p.grow(r, w, h);
+        // The shift: the largest logit of the whole tile and its 2r halo
+        // (independent of the band).
+        let sr = tile.grow(2 * r, w, h);
+        let imp = &inp.importance;
+        let mut mx = -LOGIT_LIMIT;
+        for y in sr.y0..sr.y1 {
+            for &v in &imp.row(kk, y)[sr.x0..sr.x1] {
+                mx = mx.max(logit(v));
+            }
+        }
+        for y in er.y0..er.y1 {
+            for x in er.x0..er.x1 {
+                e[er.at(y, x)] = exp(logit(imp.row(kk, y)[x]) - mx);
+            }
+        }
+        // D' and N over p: horizontal sums (rows of er, columns of p), then vertical.
+        let hr = Rect { x0: p.x0, x1: p.x1, ..er };
+        for y in er.y0..er.y1 {
+            for x in p.x0..p.x1 {
+                let (lo, hi) = (x.saturating_sub(r), (x + r + 1).min(w));
+                let mut sd = 0.0f32;
+                for xx in lo..hi {
+                    sd += e[er.at(y, xx)];
+                }
+                hsum[hr.at(y, x)] = sd;
+                for ch in 0..c {
+                    let rad = inp.radiance.row(ch, y);
+                    let mut sn = 0.0f32;
+                    for xx in lo..hi {
+                        sn += e[er.at(y, xx)] * rad[xx];
+                    }
+                    hsum[(1 + ch) * cap + hr.at(y, x)] = sn;
+                }
+            }
+        }
+        for y in p.y0..p.y1 {
+            let (lo, hi) = (y.saturating_sub(r), (y + r + 1).min(h));
+            for x in p.x0..p.x1 {
+                for pl in 0..=c {
+                    let mut sv = 0.0f32;
+                    for yy in lo..hi {
+                        sv += hsum[pl * cap + hr.at(yy, x)];
+                    }
+                    dn[pl * cap + p.at(y, x)] = sv;
+                }
+            }
+        }
+        // R, u = g / D', v = sum_c u_c R_c over p; windows too small for the
+        // shift are marked and done directly below.
+        for y in p.y0..p.y1 {
+            for x in p.x0..p.x1 {
+                let i = p.at(y, x);
+                let ai = pa.at(y, x);
+                let d = dn[i];
+                if d >= GRAD_TINY {
+                    fallback[i] = 0.0;
+                    let mut v = 0.0f32;
+                    for ch in 0..c {
+                        let rv = dn[(1 + ch) * cap + i] / d;
+                        rr[ch * cap + i] = rv;
+                        let gk = g.row(ch, y)[x] * alb(ch, y, x) * alpha[kk * cap + ai];
+                        let u = gk / d;
+                        uv[ch * cap + i] = u;
+                        v += u * rv;
+                    }
+                    uv[c * cap + i] = v;
+                } else {
+                    fallback[i] = 1.0;
+                    let rv = direct_r(inp, kk, r, y, x);
+                    for ch in 0..c {
+                        rr[ch * cap + i] = rv[ch];
+                        uv[ch * cap + i] = 0.0;
+                    }
+                    uv[c * cap + i] = 0.0;
+                }
+            }
+        }
+        // U, V over q: horizontal sums (rows of p, columns of q), then vertical.
+        let hq = Rect { x0: q.x0, x1: q.x1, ..p };
+        for y in p.y0..p.y1 {
+            for x in q.x0..q.x1 {
+                let (lo, hi) = (x.saturating_sub(r), (x + r + 1).min(w));
+                for pl in 0..=c {
+                    let mut sv = 0.0f32;
+                    for xx in lo..hi {
+                        sv += uv[pl * cap + p.at(y, xx)];
+                    }
+                    uvh[pl * cap + hq.at(y, x)] = sv;
+                }
+            }
+        }
+        for y in q.y0..q.y1 {
+            let (lo, hi) = (y.saturating_sub(r), (y + r + 1).min(h));
+            for x in q.x0..q.x1 {
+                for pl in 0..=c {
+                    let mut sv = 0.0f32;
+                    for yy in lo..hi {
+                        sv += uvh[pl * cap + hq.at(yy, x)];
+                    }
+                    uvs[pl * cap + q.at(y, x)] = sv;
+                }
+            }
+        }
+        // dI, dc and d_k over q.
+        for y in q.y0..q.y1 {
+            for x in q.x0..q.x1 {
+                let (i, pi) = (q.at(y, x), p.at(y, x));
+                let ev = e[er.at(y, x)];
+                let mut t = -uvs[c * cap + i];
+                let mut dkv = 0.0f32;
+                for ch in 0..c {
+                    let u = uvs[ch * cap + i];
+                    t += inp.radiance.row(ch, y)[x] * u;
+                    d_rad.row_mut(ch, y - y0)[x] += ev * u;
+                    dkv += g.row(ch, y)[x] * alb(ch, y, x) * rr[ch * cap + pi];
+                }
+                d_imp.row_mut(kk, y - y0)[x] = ev * t;
+                dk[kk * cap + i] = dkv;
+            }
+        }
+        // The windows done directly: their terms, one by one, into q.
+        for py in p.y0..p.y1 {
+            for px in p.x0..p.x1 {
+                let i = p.at(py, px);
+                if fallback[i] == 0.0 {
+                    continue;
+                }
+                let ai = pa.at(py, px);
+                let (wy0, wy1) = (py.saturating_sub(r).max(q.y0), (py + r + 1).min(q.y1));
+                let (wx0, wx1) = (px.saturating_sub(r).max(q.x0), (px + r + 1).min(q.x1));
+                if wy0 >= wy1 || wx0 >= wx1 {
+                    continue;
+                }
+                let (mxw, den) = window_shift(inp, kk, r, py, px);
+                for yy in wy0..wy1 {
+                    for xx in wx0..wx1 {
+                        let wq = exp(logit(imp.row(kk, yy)[xx]) - mxw) / den;
+                        let mut t = 0.0f32;
+                        for ch in 0..c {
+                            let gk = g.row(ch, py)[px] * alb(ch, py, px) * alpha[kk * cap + ai];
+                            let cq = inp.radiance.row(ch, yy)[xx];
+                            t += gk * (cq - rr[ch * cap + i]);
+                            d_rad.row_mut(ch, yy - y0)[xx] += gk * wq;
+                        }
+                        d_imp.row_mut(kk, yy - y0)[xx] += wq * t;
+                    }
+                }
+            }
+        }
+    }
+    // The fusion logits: dF_k = alpha_k (d_k - sum_j alpha_j d_j).
+    if let Some(df) = d_fus {
+        for y in q.y0..q.y1 {
+            for x in q.x0..q.x1 {
+                let (i, ai) = (q.at(y, x), pa.at(y, x));
+                let mut dot = 0.0f32;
+                for k in 0..m {
+                    dot += alpha[k * cap + ai] * dk[k * cap + i];
+                }
+                for k in 0..m {
+                    df.row_mut(k, y - y0)[x] = alpha[k * cap + ai] * (dk[k * cap + i] - dot);
+                }
+            }
+        }
+    }
+}
+
+/// The window of `(y, x)` for size index `kk`: its largest logit and the sum
+/// of its weights under that shift (at least 1).
+#[inline(always)]
+fn window_shift(inp: &FusedInputs<'_, f32>, kk: usize, r: usize, y: usize, x: usize) -> (f32, f32) {
+    let (w, h) = (inp.radiance.width(), inp.radiance.height());
+    let (ya, yb, xa, xb) = (y.saturating_sub(r), (y + r + 1).min(h), x.saturating_sub(r), (x + r + 1).min(w));
+    let mut mx = -LOGIT_LIMIT;
+    for yy in ya..yb {
+        for &v in &inp.importance.row(kk, yy)[xa..xb] {
+            mx = mx.max(logit(v));
+        }
+    }
+    let mut den = 0.0f32;
+    for yy in ya..yb {
+        for &v in &inp.importance.row(kk, yy)[xa..xb] {
+            den += exp(logit(v) - mx);
+        }
+    }
+    (mx, den)
+}
+
+/// `R_k(y, x)` with the window's own shift (the fallback).
+#[inline(always)]
+fn direct_r(inp: &FusedInputs<'_, f32>, kk: usize, r: usize, y: usize, x: usize) -> [f32; MAX_CHANNELS] {
+    let (w, h) = (inp.radiance.width(), inp.radiance.height());
+    let (mx, den) = window_shift(inp, kk, r, y, x);
+    let mut out = [0.0f32; MAX_CHANNELS];
+    for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+        for xx in x.saturating_sub(r)..(x + r + 1).min(w) {
+            let wq = exp(logit(inp.importance.row(kk, yy)[xx]) - mx) / den;
+            for (ch, o) in out.iter_mut().enumerate().take(inp.radiance.channels()) {
+                *o += wq * inp.radiance.row(ch, yy)[xx];
+            }
+        }
+    }
+    out
+}
