@@ -419,6 +419,37 @@ impl<'a, T> ViewMut<'a, T> {
         (top, bottom)
     }
 
+    /// Splits into planes `0..c` and `c..channels`. The two views touch
+    /// disjoint memory (planes never overlap, checked at construction). `c`
+    /// is clamped to the channels.
+    pub fn split_channels_at(self, c: usize) -> (ViewMut<'a, T>, ViewMut<'a, T>) {
+        let c = c.min(self.shape.channels);
+        let first = ViewMut {
+            ptr: self.ptr,
+            shape: Shape::new(c, self.shape.width, self.shape.height),
+            row_stride: self.row_stride,
+            plane_stride: self.plane_stride,
+            frac: self.frac,
+            _m: PhantomData,
+        };
+        let rest = self.shape.channels - c;
+        let second = ViewMut {
+            // SAFETY: c <= channels; when rest > 0 the offset points at plane c,
+            // inside the allocation. Otherwise nothing is ever dereferenced.
+            ptr: if rest == 0 || self.shape.width == 0 || self.shape.height == 0 {
+                self.ptr
+            } else {
+                unsafe { self.ptr.add(c * self.plane_stride) }
+            },
+            shape: Shape::new(rest, self.shape.width, self.shape.height),
+            row_stride: self.row_stride,
+            plane_stride: self.plane_stride,
+            frac: self.frac,
+            _m: PhantomData,
+        };
+        (first, second)
+    }
+
     /// Rows `y0 .. y0 + n` of every plane as a shorter-lived exclusive view.
     ///
     /// # Panics

@@ -78,9 +78,11 @@ pub enum Field {
     History,
     /// A noise variance, 1 plane, `[0.001, 0.02)`.
     Noise,
+    /// An output's gradient (for the backward passes), 14 planes, `[-1, 1)`.
+    Grad,
 }
 
-const FIELDS: usize = Field::Noise as usize + 1;
+const FIELDS: usize = Field::Grad as usize + 1;
 
 fn rng(seed: u64) -> impl FnMut() -> f32 {
     let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
@@ -181,6 +183,7 @@ impl Inputs {
             field(3, w, h, 0.0, 4.0, s(15)),
             field(1, w, h, 0.0, 8.0, s(16)),
             field(1, w, h, 0.001, 0.02, s(17)),
+            field(14, w, h, -1.0, 1.0, s(19)),
         ];
         Inputs { w, h, fields }
     }
@@ -462,6 +465,8 @@ pub struct Op {
     pub params: Vec<Field>,
     /// Output planes and whether the output is at half resolution.
     pub out: (usize, bool),
+    /// A fixed output shape `(planes, width, height)` instead (e.g. a weight gradient).
+    pub out_fixed: Option<(usize, usize, usize)>,
     /// Planes of a second output (full resolution), if any.
     pub out2: Option<(usize, i8)>,
     /// Band boundaries on multiples of this many rows.
@@ -502,6 +507,9 @@ macro_rules! per_f32 {
     ($run:ident, $kernel:ident) => {
         Prep { f32: || Per { run: Run::$run($kernel), scratch: |_| 0 }, f16: None, f16a: None, fixed: None }
     };
+    ($run:ident, $kernel:ident, $scratch:ident) => {
+        Prep { f32: || Per { run: Run::$run($kernel), scratch: $scratch }, f16: None, f16a: None, fixed: None }
+    };
 }
 
 impl Op {
@@ -512,7 +520,9 @@ impl Op {
 
     /// Output shape `(planes, width, height)` for inputs of `w x h`.
     pub fn out_shape(&self, w: usize, h: usize) -> (usize, usize, usize) {
-        if self.out.1 {
+        if let Some(s) = self.out_fixed {
+            s
+        } else if self.out.1 {
             (self.out.0, w.div_ceil(2), h.div_ceil(2))
         } else {
             (self.out.0, w, h)
@@ -868,6 +878,50 @@ fn s_atrous<P: HostPrecision>(_w: usize) -> usize {
     atrous::step_scratch_len::<P>(1)
 }
 
+// Backward passes (f32): several gradients go out as one tensor, their
+// planes one after the other.
+
+fn k_conv3_grad_input(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, y0: usize, s: &mut [f32]) -> CoreResult<()> {
+    let (tw, rest) = s.split_at_mut(14 * 14 * 9);
+    conv::grad::transpose_weights(3, 14, 14, a.params[0], tw)?;
+    conv::grad::grad_input(a.isa, 3, 14, 14, tw, &a.ins[0], b, y0, rest)
+}
+fn s_conv3_grad_input(w: usize) -> usize {
+    14 * 14 * 9 + conv::grad::grad_input_scratch_len(3, 14, 14, w)
+}
+fn conv_grad_weights(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, k: usize) -> CoreResult<()> {
+    // The weights' gradient as one row of cout * cin * k * k values, all image rows summed.
+    let dw = b.row_mut(0, 0);
+    dw.fill(0.0);
+    let rows = a.ins[0].height();
+    conv::grad::grad_weights(a.isa, k, &a.ins[0], &a.ins[1], 0, rows, dw, None)
+}
+fn k_conv3_grad_weights(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, _: usize, _: &mut [f32]) -> CoreResult<()> {
+    conv_grad_weights(a, b, 3)
+}
+fn k_conv5_grad_weights(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, _: usize, _: &mut [f32]) -> CoreResult<()> {
+    conv_grad_weights(a, b, 5)
+}
+fn k_fused6_grad(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, y0: usize, s: &mut [f32]) -> CoreResult<()> {
+    let (mut imp, rest) = b.reborrow().split_channels_at(6);
+    let (mut fus, mut rad) = rest.split_channels_at(6);
+    let out = softmax::grad::FusedGrads { importance: &mut imp, fusion: Some(&mut fus), radiance: &mut rad };
+    let g = a.ins[4].channels_range(0, 3)?;
+    softmax::grad::fused_filter_grad(a.isa, &fused_inputs(a, &SIX), &g, out, y0, s)
+}
+fn s_fused6_grad(w: usize) -> usize {
+    softmax::grad::fused_grad_scratch_len(6, 3, w)
+}
+fn k_apply7_grad(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, y0: usize, _: &mut [f32]) -> CoreResult<()> {
+    let (mut dk, mut ds) = b.reborrow().split_channels_at(49);
+    let g = a.ins[2].channels_range(0, 3)?;
+    unfold::grad::apply_grad(a.isa, 7, &a.ins[0], &a.ins[1], &g, Some(&mut dk), Some(&mut ds), y0)
+}
+fn k_softmax6_grad(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, y0: usize, _: &mut [f32]) -> CoreResult<()> {
+    let n = b.height();
+    softmax::grad::channel_softmax_grad(a.isa, &a.ins[0].rows(y0, n)?, &a.ins[1].rows(y0, n)?, b)
+}
+
 fn k_local_noise(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, y0: usize, _: &mut [f32]) -> CoreResult<()> {
     atrous::noise::local_noise_rows(&a.ins[0], b, y0)
 }
@@ -942,6 +996,21 @@ fn o_atrous(i: &Inputs) -> Vec<f64> {
     )
 }
 
+/// Backward passes, f32: gathers to rounding of the inputs' range; the
+/// fused filter's cancelling terms and the weight gradient's long sums (every
+/// pixel of the image) need more.
+const GRAD_TOL: [Tol; 4] = [tol(1e-6, 1e-5), tol(0.0, 0.0), tol(0.0, 0.0), tol(0.0, 0.0)];
+const FUSED_GRAD_TOL: [Tol; 4] = [tol(1e-6, 1e-5), tol(0.0, 0.0), tol(0.0, 0.0), tol(0.0, 0.0)];
+const WEIGHT_GRAD_TOL: [Tol; 4] = [tol(5e-6, 5e-6), tol(0.0, 0.0), tol(0.0, 0.0), tol(0.0, 0.0)];
+
+fn concat(parts: [Vec<f64>; 3]) -> Vec<f64> {
+    parts.concat()
+}
+
+fn o_conv_grad(i: &Inputs, k: usize, wf: Field) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    oracle::conv2d_grad(k, 14, 14, &i.f64(wf), &i.f64(Field::Features), &i.f64(Field::Grad), i.w, i.h)
+}
+
 /// Every operator, in report order.
 pub fn ops() -> Vec<Op> {
     use Field::*;
@@ -956,6 +1025,7 @@ pub fn ops() -> Vec<Op> {
         inputs,
         params: vec![],
         out: (3, false),
+        out_fixed: None,
         out2: None,
         align: 1,
         precisions: ALL,
@@ -1157,6 +1227,102 @@ pub fn ops() -> Vec<Op> {
                     full(Position, 3, Kind::Plain),
                 ],
                 per!(One, k_atrous, s_atrous),
+            )
+        },
+        Op {
+            oracle: |i, _| o_conv_grad(i, 3, Weights3).0,
+            params: vec![Weights3],
+            out: (14, false),
+            precisions: F32_ONLY,
+            tol: GRAD_TOL,
+            ..base(
+                "conv3x3-grad-input",
+                "backward: the input gradient of a 3x3 convolution 14 -> 14 (the forward kernel on transposed weights)",
+                vec![full(Grad, 14, Kind::Image)],
+                per_f32!(One, k_conv3_grad_input, s_conv3_grad_input),
+            )
+        },
+        Op {
+            oracle: |i, _| o_conv_grad(i, 3, Weights3).1,
+            out_fixed: Some((1, 14 * 14 * 9, 1)),
+            precisions: F32_ONLY,
+            tol: WEIGHT_GRAD_TOL,
+            ..base(
+                "conv3x3-grad-weights",
+                "backward: the weight gradient of a 3x3 convolution 14 -> 14, summed over the image",
+                vec![full(Features, 14, Kind::Image), full(Grad, 14, Kind::Image)],
+                per_f32!(One, k_conv3_grad_weights),
+            )
+        },
+        Op {
+            oracle: |i, _| o_conv_grad(i, 5, Weights5).1,
+            out_fixed: Some((1, 14 * 14 * 25, 1)),
+            precisions: F32_ONLY,
+            tol: WEIGHT_GRAD_TOL,
+            ..base(
+                "conv5x5-grad-weights",
+                "backward: the weight gradient of a 5x5 convolution 14 -> 14, summed over the image",
+                vec![full(Features, 14, Kind::Image), full(Grad, 14, Kind::Image)],
+                per_f32!(One, k_conv5_grad_weights),
+            )
+        },
+        Op {
+            oracle: |i, _| {
+                let n = i.w * i.h;
+                let (di, df, dc) = oracle::fused_grad(
+                    &SIX,
+                    &i.f64(Logits),
+                    Some(&i.f64(Fusion)),
+                    Some(&i.f64(Albedo)),
+                    &i.f64(Radiance),
+                    &i.f64(Grad)[..3 * n],
+                    3,
+                    i.w,
+                    i.h,
+                );
+                concat([di, df, dc])
+            },
+            out: (15, false),
+            align: 32,
+            precisions: F32_ONLY,
+            tol: FUSED_GRAD_TOL,
+            ..base(
+                "fused6-grad",
+                "backward: the fused importance filter's gradients (importance, fusion, radiance)",
+                vec![logits(6), fusion(6), full(Albedo, 3, Kind::Unit), image(Radiance), full(Grad, 3, Kind::Image)],
+                per_f32!(One, k_fused6_grad, s_fused6_grad),
+            )
+        },
+        Op {
+            oracle: |i, _| {
+                let n = i.w * i.h;
+                let (dk, ds) =
+                    oracle::unfold_grad(7, &i.f64(Kernel), &i.f64(Radiance), &i.f64(Grad)[..3 * n], 3, i.w, i.h);
+                [dk, ds].concat()
+            },
+            out: (52, false),
+            precisions: F32_ONLY,
+            tol: GRAD_TOL,
+            ..base(
+                "apply7x7-grad",
+                "backward: the 7x7 apply's gradients (kernel map, image)",
+                vec![full(Kernel, 49, Kind::Unit), image(Radiance), full(Grad, 3, Kind::Image)],
+                per_f32!(One, k_apply7_grad),
+            )
+        },
+        Op {
+            oracle: |i, _| {
+                let n = i.w * i.h;
+                oracle::channel_softmax_grad(&i.f64(Fusion), &i.f64(Grad)[..6 * n], 6, i.w, i.h)
+            },
+            out: (6, false),
+            precisions: F32_ONLY,
+            tol: GRAD_TOL,
+            ..base(
+                "softmax6-grad",
+                "backward: the channel softmax's gradient y (dy - sum y dy)",
+                vec![fusion(6), full(Grad, 6, Kind::Image)],
+                per_f32!(One, k_softmax6_grad),
             )
         },
         Op {
