@@ -20,11 +20,13 @@ usage:
                                  write outputs and PNGs under ./mcdenoise-out/
   mcdenoise denoise --method M [options] INPUT... -o OUTDIR
                                  INPUT: frame files in order, or a directory (its .exr files by name)
-      --method M                 none | ta | atrous | sure-atrous
+      --method M                 none | ta | atrous | sure-atrous | wskp
       --precision P              f32 (default) | f16 | f16-arith | fixed
       --threads N                worker threads (default: all cores)
       --isa I                    scalar | avx2 | avx512 (default: the best this CPU has)
       --phi-color F              a-trous colour edge-stopping, in noise variances (default 64)
+      --layers N                 wskp: 3 or 6 ImportanceNet layers (default 6)
+      --weights FILE             learned methods: weights made by 'mcdenoise train' (default: bundled)
       --half                     write f16 EXR (default f32)
       --png                      also write a tone-mapped PNG preview per frame
       --timings                  print per-stage times
@@ -32,6 +34,15 @@ usage:
                                  time and error (against the f64 oracle) of every operator in every
                                  precision and instruction set; CSV and an SVG plot (default under
                                  ./mcdenoise-out/); 1 thread and 1280x720 unless told otherwise
+  mcdenoise train --method wskp --data DIR (--steps N | --minutes M) -o WEIGHTS [options]
+      --val DIR                  validation sequences (mean PSNR printed every --val-every steps)
+      --layers N                 3 or 6 (default 6)        --batch N      crops per step (default 8)
+      --crop N                   crop side (default 128)   --lr F         Adam learning rate (default 1e-3)
+      --loss L                   smape | relmse | l1 (default smape)  --clip F  gradient norm clip (default off)
+      --seed N                   initialisation and sampling seed (default 1)
+      --threads N, --isa I       as for denoise            --resume CKPT  continue from WEIGHTS.ckpt
+      --checkpoint-minutes F     (default 5)               --val-every N  (default 500)
+      --log CSV                  step, seconds, loss and validation PSNR per step
   mcdenoise score --reference REF OUT [--json]
                                  REF and OUT: two files, or two directories (matched by name)
   mcdenoise help | --help | --version
@@ -58,6 +69,8 @@ pub enum Command {
     },
     /// The precision report.
     Precision(crate::report::ReportArgs),
+    /// Train a learned method.
+    Train(crate::train::TrainArgs),
     /// Print usage.
     Help,
     /// Print the version.
@@ -119,6 +132,14 @@ fn parse_settings(flag: &str, value: &str, s: &mut Settings) -> Result<bool> {
             s.isa = Isa::from_name(value)
                 .ok_or_else(|| usage(format!("--isa: expected scalar, avx2 or avx512; got '{value}'")))?
         }
+        "--layers" => {
+            s.layers = match value.trim() {
+                "3" => 3,
+                "6" => 6,
+                _ => return Err(usage(format!("--layers: expected 3 or 6, got '{value}'"))),
+            }
+        }
+        "--weights" => s.weights = Some(PathBuf::from(value)),
         _ => return Ok(false),
     }
     Ok(true)
@@ -156,7 +177,7 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
                     Some("--half") => half = true,
                     Some("--png") => png = true,
                     Some("--timings") => timings = true,
-                    Some(f @ ("--precision" | "--threads" | "--isa" | "--phi-color")) => {
+                    Some(f @ ("--precision" | "--threads" | "--isa" | "--phi-color" | "--layers" | "--weights")) => {
                         let f = f.to_string();
                         let v = text(&f, it.next())?;
                         parse_settings(&f, &v, &mut settings)?;
@@ -166,7 +187,7 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
                 }
             }
             let method =
-                method.ok_or_else(|| usage("denoise: --method is required (none, ta, atrous, sure-atrous)"))?;
+                method.ok_or_else(|| usage("denoise: --method is required (none, ta, atrous, sure-atrous, wskp)"))?;
             let outdir = outdir.ok_or_else(|| usage("denoise: -o OUTDIR is required"))?;
             if inputs.is_empty() {
                 return Err(usage("denoise: no INPUT given (frame files or a directory)"));
@@ -213,6 +234,65 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
                 }
             }
             Ok(Command::Precision(a))
+        }
+        "train" => {
+            let mut a = crate::train::TrainArgs { threads: default_threads(), ..Default::default() };
+            let mut out = None;
+            let mut data = None;
+            while let Some(f) = it.next() {
+                let f = f.into_string().map_err(|_| usage("argument is not valid UTF-8"))?;
+                let v = text(&f, it.next())?;
+                let float = |flag: &str, lo: f64, hi: f64| -> Result<f64> {
+                    v.trim()
+                        .parse::<f64>()
+                        .ok()
+                        .filter(|x| x.is_finite() && (lo..=hi).contains(x))
+                        .ok_or_else(|| usage(format!("{flag}: expected a number from {lo} to {hi}, got '{v}'")))
+                };
+                match f.as_str() {
+                    "--method" => {
+                        if v != "wskp" {
+                            return Err(usage(format!("train --method: expected wskp, got '{v}'")));
+                        }
+                        a.method = v;
+                    }
+                    "--data" => data = Some(PathBuf::from(v)),
+                    "--val" => a.val = Some(PathBuf::from(v)),
+                    "-o" | "--output" => out = Some(PathBuf::from(v)),
+                    "--layers" => {
+                        let mut s = Settings::default();
+                        parse_settings("--layers", &v, &mut s)?;
+                        a.layers = s.layers;
+                    }
+                    "--steps" => a.steps = Some(number("--steps", &v, 1, 1 << 40)? as u64),
+                    "--minutes" => a.minutes = Some(float("--minutes", 0.0, 1e6)?),
+                    "--batch" => a.batch = number("--batch", &v, 1, 256)?,
+                    "--crop" => a.crop = number("--crop", &v, 8, 4096)?,
+                    "--lr" => a.lr = float("--lr", 0.0, 1.0)? as f32,
+                    "--clip" => a.clip = float("--clip", 0.0, 1e9)? as f32,
+                    "--loss" => {
+                        a.loss = crate::nn::loss::Loss::parse(&v)
+                            .ok_or_else(|| usage(format!("--loss: expected smape, relmse or l1, got '{v}'")))?
+                    }
+                    "--seed" => a.seed = number("--seed", &v, 0, usize::MAX)? as u64,
+                    "--threads" => a.threads = number("--threads", &v, 1, 256)?,
+                    "--isa" => {
+                        a.isa = Isa::from_name(&v)
+                            .ok_or_else(|| usage(format!("--isa: expected scalar, avx2 or avx512; got '{v}'")))?
+                    }
+                    "--resume" => a.resume = Some(PathBuf::from(v)),
+                    "--checkpoint-minutes" => a.checkpoint_minutes = float("--checkpoint-minutes", 0.0, 1e6)?,
+                    "--val-every" => a.val_every = number("--val-every", &v, 0, 1 << 40)? as u64,
+                    "--log" => a.log = Some(PathBuf::from(v)),
+                    _ => return Err(usage(format!("train: unknown option '{f}'"))),
+                }
+            }
+            a.data = data.ok_or_else(|| usage("train: --data DIR is required"))?;
+            a.out = out.ok_or_else(|| usage("train: -o WEIGHTS is required"))?;
+            if a.steps.is_none() && a.minutes.is_none() {
+                return Err(usage("train: give --steps N or --minutes M"));
+            }
+            Ok(Command::Train(a))
         }
         "score" => {
             let (mut reference, mut paths, mut json) = (None, Vec::new(), false);

@@ -9,10 +9,14 @@ pub mod error;
 pub mod frame;
 pub mod methods;
 pub mod metrics;
+pub mod nn;
 pub mod output;
 pub mod par;
 pub mod precision;
 pub mod run;
+pub mod train;
+pub mod weights;
+pub mod wskp;
 
 // Not the library's API: the command line, the f64 oracle, the operator
 // registry and the precision report serve this workspace's binary, tests,

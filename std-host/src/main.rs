@@ -30,6 +30,7 @@ fn main() -> ExitCode {
         Ok(Command::Denoise(a)) => run::denoise_cmd(&a),
         Ok(Command::Score { reference, output, json }) => run::score_cmd(&reference, &output, json),
         Ok(Command::Precision(a)) => mcdenoise::report::run(&a).map(|_| ()),
+        Ok(Command::Train(a)) => mcdenoise::train::run(&a),
         Err(e) => Err(e),
     };
     match result {

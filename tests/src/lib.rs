@@ -135,3 +135,32 @@ pub fn isas_under_test() -> Vec<mcdenoise_core::Isa> {
 pub fn simd_isas() -> Vec<mcdenoise_core::Isa> {
     isas_under_test().into_iter().filter(|&i| i != mcdenoise_core::Isa::Scalar).collect()
 }
+
+/// A WSKP weights file of `layers` layers with initial (untrained, seeded)
+/// parameters, written once per test process into the temporary directory:
+/// for tests of the method's plumbing, not of its quality.
+pub fn wskp_test_weights(layers: usize) -> std::path::PathBuf {
+    use mcdenoise::nn::weights::{save_params, Form};
+    let dir = std::env::temp_dir().join(format!("mcdenoise-test-{}", std::process::id()));
+    let path = dir.join(format!("wskp{layers}.safetensors"));
+    if !path.exists() {
+        let net = mcdenoise::wskp::net(layers).unwrap();
+        // Small weights: logits of a few nats, every window carrying weight.
+        let params: Vec<f32> = net.init(7).iter().map(|v| v * 0.3).collect();
+        save_params(&path, &net, &params, Form::Branches, "wskp", &[("layers", layers.to_string())]).unwrap();
+    }
+    path
+}
+
+/// Settings for `kind` with the test weights a learned method needs.
+pub fn settings_for(
+    kind: mcdenoise::methods::MethodKind,
+    base: mcdenoise::methods::Settings,
+) -> mcdenoise::methods::Settings {
+    match kind {
+        mcdenoise::methods::MethodKind::Wskp => {
+            mcdenoise::methods::Settings { weights: Some(wskp_test_weights(base.layers)), ..base }
+        }
+        _ => base,
+    }
+}

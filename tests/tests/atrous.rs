@@ -397,7 +397,7 @@ fn fixture(p: &str) -> std::path::PathBuf {
 
 /// Denoises one frame and returns (linear MSE, display PSNR, relMSE).
 fn evaluate(kind: MethodKind, frame: &Frame, reference: &[f32]) -> (f64, f64, f64) {
-    let settings = Settings { isa: Isa::detect(), threads: 2, precision: PrecisionKind::F32, phi_color: None };
+    let settings = Settings { isa: Isa::detect(), threads: 2, precision: PrecisionKind::F32, ..Settings::default() };
     let mut den = methods::create(kind, &settings, frame).unwrap();
     let mut ctx = methods::context(&settings).unwrap();
     let out = den.denoise(frame, &mut ctx, &mut Timings::default()).unwrap();

@@ -22,7 +22,10 @@ fn run_method(kind: MethodKind, threads: usize, isa: Isa, dir: &Path) -> Vec<Vec
         .filter(|p| p.extension().is_some_and(|e| e == "exr"))
         .collect();
     files.sort();
-    let settings = Settings { isa, threads, precision: PrecisionKind::F32, phi_color: None };
+    let settings = mcdenoise_tests::settings_for(
+        kind,
+        Settings { isa, threads, precision: PrecisionKind::F32, phi_color: None, ..Settings::default() },
+    );
     let first = Frame::load(&files[0], &Limits::default()).unwrap();
     let mut den = methods::create(kind, &settings, &first).unwrap();
     let mut ctx = methods::context(&settings).unwrap();
@@ -97,7 +100,8 @@ fn temporal_accumulation_follows_the_blend_recurrence() {
     let (w, h) = (9, 7);
     let colours = [1.0f32, 3.0, 0.5, 8.0, 2.0, 2.0, 7.0, 0.0, 1.0];
     for isa in isas_under_test() {
-        let settings = Settings { isa, threads: 2, precision: PrecisionKind::F32, phi_color: None };
+        let settings =
+            Settings { isa, threads: 2, precision: PrecisionKind::F32, phi_color: None, ..Settings::default() };
         let first = static_frame(w, h, colours[0], 0.0);
         let mut den = methods::create(MethodKind::Ta, &settings, &first).unwrap();
         let mut ctx = methods::context(&settings).unwrap();

@@ -33,7 +33,10 @@ fn every_method_is_thread_count_independent() {
             for precision in PrecisionKind::ALL {
                 for isa in isas_under_test() {
                     let run = |threads: usize| -> Vec<Vec<f32>> {
-                        let settings = Settings { isa, threads, precision, ..Settings::default() };
+                        let settings = mcdenoise_tests::settings_for(
+                            kind,
+                            Settings { isa, threads, precision, ..Settings::default() },
+                        );
                         let mut den = methods::create(kind, &settings, &frames[0]).unwrap();
                         let mut ctx = methods::context(&settings).unwrap();
                         let mut t = Timings::default();

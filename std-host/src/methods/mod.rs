@@ -32,11 +32,14 @@ pub enum MethodKind {
     Atrous,
     /// À-trous with per-pixel SURE shrinkage of the detail coefficients.
     SureAtrous,
+    /// Weight-sharing kernel prediction: TA, the ImportanceNet, the fused filter.
+    Wskp,
 }
 
 impl MethodKind {
     /// Every method.
-    pub const ALL: [MethodKind; 4] = [MethodKind::None, MethodKind::Ta, MethodKind::Atrous, MethodKind::SureAtrous];
+    pub const ALL: [MethodKind; 5] =
+        [MethodKind::None, MethodKind::Ta, MethodKind::Atrous, MethodKind::SureAtrous, MethodKind::Wskp];
 
     /// The command-line name.
     pub fn name(self) -> &'static str {
@@ -44,6 +47,7 @@ impl MethodKind {
             MethodKind::None => "none",
             MethodKind::Ta => "ta",
             MethodKind::Atrous => "atrous",
+            MethodKind::Wskp => "wskp",
             MethodKind::SureAtrous => "sure-atrous",
         }
     }
@@ -111,7 +115,7 @@ impl Timings {
 }
 
 /// Settings every method shares.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Settings {
     /// Instruction set for every kernel.
     pub isa: Isa,
@@ -121,11 +125,22 @@ pub struct Settings {
     pub precision: PrecisionKind,
     /// À-trous colour edge-stopping multiple (`None`: the default, 64).
     pub phi_color: Option<f32>,
+    /// Learned methods: network layers (WSKP: 3 or 6).
+    pub layers: usize,
+    /// Learned methods: a weights file instead of the bundled weights.
+    pub weights: Option<std::path::PathBuf>,
 }
 
 impl Default for Settings {
     fn default() -> Self {
-        Settings { isa: Isa::detect(), threads: 1, precision: PrecisionKind::F32, phi_color: None }
+        Settings {
+            isa: Isa::detect(),
+            threads: 1,
+            precision: PrecisionKind::F32,
+            phi_color: None,
+            layers: 6,
+            weights: None,
+        }
     }
 }
 
@@ -165,6 +180,10 @@ fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Fr
         MethodKind::Ta => Box::new(TemporalAccumulation::<P>::new(first, true)?),
         MethodKind::Atrous => Box::new(Atrous::<P>::new(first, false, settings.phi_color)?),
         MethodKind::SureAtrous => Box::new(Atrous::<P>::new(first, true, settings.phi_color)?),
+        MethodKind::Wskp => {
+            let file = crate::weights::wskp(settings.weights.as_deref(), settings.layers)?;
+            Box::new(crate::wskp::Wskp::<P>::new(first, &file, settings.layers)?)
+        }
     })
 }
 

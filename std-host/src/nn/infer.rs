@@ -1,0 +1,233 @@
+//! A trained network over a whole frame in any precision: each layer is the
+//! core's operator run over bands of rows on the context's threads, tensors
+//! kept only while a later layer reads them (a chain of convolutions holds
+//! two at a time), buffers reused from frame to frame.
+//!
+//! Fixed point needs a format per tensor: [`Inference::new`] takes each
+//! tensor's largest magnitude (measured by an f32 run, [`Inference::ranges`])
+//! and gives it the format that keeps twice that representable; weights get
+//! as many fractional bits as each output channel's bit budget allows.
+
+use mcdenoise_core::conv::{self, Conv2d};
+use mcdenoise_core::pool::{self, grad as pgrad, Reduce};
+
+use super::{Net, Node};
+use crate::error::{HostError, Result};
+use crate::methods::Ctx;
+use crate::precision::{frac_for_max, HostPrecision, Planes};
+
+/// One conv layer's weights in the precision.
+struct Weights<T> {
+    w: Vec<T>,
+    b: Option<Vec<T>>,
+    frac: i8,
+}
+
+/// A network ready to run in precision `P`.
+pub struct Inference<P: HostPrecision> {
+    net: Net,
+    weights: Vec<Weights<P::Store>>,
+    /// Fixed point: each tensor's format (0 otherwise).
+    fracs: Vec<i8>,
+    /// Buffers by tensor (None when not live).
+    bufs: Vec<Option<Planes<P::Store>>>,
+    free: Vec<Planes<P::Store>>,
+    last_use: Vec<usize>,
+}
+
+impl<P: HostPrecision> Inference<P> {
+    /// From the parameters; `ranges` (one per tensor, e.g. from
+    /// [`Inference::ranges`]) set the fixed-point formats, `out_frac` the
+    /// last tensor's when given.
+    pub fn new(net: &Net, params: &[f32], ranges: Option<&[f32]>, out_frac: Option<i8>) -> Result<Self> {
+        let nt = net.tensors.len();
+        let mut fracs: Vec<i8> = match ranges {
+            Some(r) if r.len() == nt => r.iter().map(|&m| frac_for_max(m)).collect(),
+            Some(_) => return Err(HostError::Usage("network ranges: one per tensor".into())),
+            None => vec![0; nt],
+        };
+        if let (Some(f), Some(last)) = (out_frac, fracs.last_mut()) {
+            *last = f;
+        }
+        if P::NAME != "fixed" {
+            fracs.iter_mut().for_each(|f| *f = 0);
+        }
+        let mut weights = Vec::new();
+        for (i, c) in net.convs.iter().enumerate() {
+            let k = c.k();
+            let mut m = vec![0.0f32; c.spec.cout * c.cin * k * k];
+            net.merge(params, i, &mut m);
+            let frac = if P::NAME == "fixed" {
+                let per = c.cin * k * k;
+                let maxsum = m.chunks(per).map(|ch| ch.iter().map(|v| v.abs()).sum::<f32>()).fold(0.0, f32::max);
+                ((65535.0 / maxsum.max(1e-6)).log2().floor() as i32).clamp(0, 14) as i8
+            } else {
+                0
+            };
+            let mut w = vec![P::Store::default(); m.len()];
+            P::encode(&m, &mut w, frac);
+            let out_t = net
+                .nodes
+                .iter()
+                .find_map(|n| match *n {
+                    Node::Conv { conv, out, .. } if conv == i => Some(out),
+                    _ => None,
+                })
+                .expect("every conv has a node");
+            let b = net.bias(params, i).map(|b| {
+                let mut s = vec![P::Store::default(); b.len()];
+                P::encode(b, &mut s, fracs[out_t]);
+                s
+            });
+            weights.push(Weights { w, b, frac });
+        }
+        let mut last_use = vec![0; nt];
+        for (n, node) in net.nodes.iter().enumerate() {
+            match *node {
+                Node::Conv { x, .. } | Node::Pool { x, .. } | Node::Up { x, .. } => last_use[x] = n,
+                Node::Concat { a, b, .. } => {
+                    last_use[a] = n;
+                    last_use[b] = n;
+                }
+            }
+        }
+        last_use[nt - 1] = usize::MAX;
+        Ok(Inference {
+            net: net.clone(),
+            weights,
+            fracs,
+            bufs: (0..nt).map(|_| None).collect(),
+            free: Vec::new(),
+            last_use,
+        })
+    }
+
+    /// The format the input must be stored in (fixed point).
+    pub fn input_frac(&self) -> i8 {
+        self.fracs[0]
+    }
+
+    fn take(&mut self, c: usize, w: usize, h: usize, frac: i8) -> Planes<P::Store> {
+        let n = c * w * h;
+        let mut p = match self.free.iter().position(|b| b.data.len() == n) {
+            Some(i) => self.free.swap_remove(i),
+            None => Planes::new(c, w, h),
+        };
+        (p.channels, p.width, p.height, p.frac) = (c, w, h, frac);
+        p
+    }
+
+    /// Runs the network on `input` (the network's input channels, stored in
+    /// `P` with [`Inference::input_frac`]); the output stays until the next run.
+    pub fn run(&mut self, ctx: &mut Ctx, input: Planes<P::Store>) -> Result<&Planes<P::Store>> {
+        let (w, h) = (input.width, input.height);
+        if input.channels != self.net.desc.cin {
+            return Err(HostError::Usage(format!(
+                "network input: {} channels, expected {}",
+                input.channels, self.net.desc.cin
+            )));
+        }
+        for b in self.bufs.iter_mut() {
+            if let Some(p) = b.take() {
+                self.free.push(p);
+            }
+        }
+        self.bufs[0] = Some(input);
+        let isa = ctx.isa;
+        let nodes = self.net.nodes.clone();
+        for (n, node) in nodes.iter().enumerate() {
+            let out_t = match *node {
+                Node::Conv { out, .. } | Node::Pool { out, .. } | Node::Up { out, .. } | Node::Concat { out, .. } => {
+                    out
+                }
+            };
+            let (tw, th) = self.net.size(out_t, w, h);
+            let mut out = self.take(self.net.tensors[out_t].c, tw, th, self.fracs[out_t]);
+            match *node {
+                Node::Conv { conv: i, x, .. } => {
+                    let c = self.net.convs[i];
+                    let wt = &self.weights[i];
+                    let layer = Conv2d {
+                        k: c.k(),
+                        cin: c.cin,
+                        cout: c.spec.cout,
+                        weights: &wt.w,
+                        bias: wt.b.as_deref(),
+                        act: c.spec.act,
+                        weight_frac: wt.frac,
+                    };
+                    let src = self.bufs[x].as_ref().expect("live input").view();
+                    let len = conv::conv2d_scratch_len::<P>(c.k(), c.cin, c.spec.cout, w);
+                    ctx.pool.bands(out.view_mut(), 1, &mut ctx.scratch, len, |b, y0, s| {
+                        conv::conv2d::<P>(isa, &layer, &src, b, y0, s)
+                    })?;
+                }
+                Node::Pool { max, x, .. } => {
+                    let src = self.bufs[x].as_ref().expect("live input").view();
+                    let op = if max { Reduce::Max } else { Reduce::Mean };
+                    ctx.pool.bands(out.view_mut(), 1, &mut ctx.scratch, 0, |b, y0, _| {
+                        pool::reduce2x2::<P>(isa, op, &src, b, y0)
+                    })?;
+                }
+                Node::Up { bilinear, x, .. } => {
+                    let src = self.bufs[x].as_ref().expect("live input").view();
+                    if bilinear {
+                        // The bilinear upsample is an f32 operator: through f32 and back.
+                        let s = self.bufs[x].as_ref().expect("live input");
+                        let mut s32 = Planes::<f32>::new(s.channels, s.width, s.height);
+                        P::decode(&s.data, &mut s32.data, s.frac);
+                        let sv = s32.view();
+                        let mut o32 = Planes::<f32>::new(out.channels, tw, th);
+                        ctx.pool.bands(o32.view_mut(), 2, &mut ctx.scratch, 0, |b, y0, _| {
+                            pgrad::upsample_bilinear2x(isa, &sv, b, y0, th)
+                        })?;
+                        P::encode(&o32.data, &mut out.data, out.frac);
+                    } else {
+                        ctx.pool.bands(out.view_mut(), 2, &mut ctx.scratch, 0, |b, y0, _| {
+                            pool::upsample_nearest2x::<P>(isa, &src, b, y0, th)
+                        })?;
+                    }
+                }
+                Node::Concat { a, b, .. } => {
+                    let (pa, pb) = (self.bufs[a].as_ref().expect("live"), self.bufs[b].as_ref().expect("live"));
+                    let na = pa.data.len();
+                    out.data[..na].copy_from_slice(&pa.data);
+                    out.data[na..].copy_from_slice(&pb.data);
+                    if pa.frac != pb.frac {
+                        return Err(HostError::Usage("concat of fixed-point tensors in different formats".into()));
+                    }
+                }
+            }
+            self.bufs[out_t] = Some(out);
+            for t in 0..self.bufs.len() {
+                if self.last_use[t] == n {
+                    if let Some(p) = self.bufs[t].take() {
+                        self.free.push(p);
+                    }
+                }
+            }
+        }
+        Ok(self.bufs.last().and_then(|b| b.as_ref()).expect("the output is live"))
+    }
+
+    /// Each tensor's largest magnitude on `input` (f32 runs only), for the
+    /// fixed-point formats.
+    pub fn ranges(&mut self, ctx: &mut Ctx, input: Planes<P::Store>) -> Result<Vec<f32>> {
+        let nt = self.net.tensors.len();
+        let saved = std::mem::replace(&mut self.last_use, vec![usize::MAX; nt]);
+        let r = self.run(ctx, input).map(|_| ());
+        self.last_use = saved;
+        r?;
+        Ok(self
+            .bufs
+            .iter()
+            .map(|b| {
+                b.as_ref().map_or(0.0, |p| {
+                    let mut v = vec![0.0f32; p.data.len()];
+                    P::decode(&p.data, &mut v, p.frac);
+                    v.iter().fold(0.0f32, |m, x| m.max(x.abs()))
+                })
+            })
+            .collect())
+    }
+}

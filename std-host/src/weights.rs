@@ -1,0 +1,23 @@
+//! The trained weights a learned method uses: a file given with
+//! `--weights`, or the weights bundled in this crate (`std-host/weights/`,
+//! made by `mcdenoise train` with the commands in docs/training.md).
+
+use std::path::Path;
+
+use crate::error::{HostError, Result};
+use crate::nn::weights::File;
+
+/// WSKP's weights for `layers` layers.
+pub fn wskp(path: Option<&Path>, layers: usize) -> Result<File> {
+    if let Some(p) = path {
+        return File::read(p);
+    }
+    // Filled in when trained weights are bundled.
+    let bundled: Option<&'static [u8]> = None;
+    match bundled {
+        Some(b) => File::from_bytes(b.to_vec(), Path::new(&format!("<bundled wskp{layers}>"))),
+        None => Err(HostError::Usage(format!(
+            "wskp: no bundled weights for {layers} layers in this build; pass --weights FILE (made by 'mcdenoise train --method wskp')"
+        ))),
+    }
+}
