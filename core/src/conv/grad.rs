@@ -200,6 +200,10 @@ fn grad_weights_scalar(k: usize, x: &View<'_, f32>, dz: &View<'_, f32>, y0: usiz
     }
 }
 
+/// Rows per tile of the SIMD weight gradients.
+#[cfg(target_arch = "x86_64")]
+const ROW_TILE: usize = 8;
+
 /// The output-channel blocks: near-equal sizes of at most `max`.
 fn blocks(cout: usize, max: usize) -> impl Iterator<Item = (usize, usize)> {
     let n = cout.div_ceil(max);
@@ -215,7 +219,7 @@ fn blocks(cout: usize, max: usize) -> impl Iterator<Item = (usize, usize)> {
 mod avx2 {
     use core::arch::x86_64::*;
 
-    use super::blocks;
+    use super::{blocks, ROW_TILE};
     use crate::simd::avx2::load8_range;
     use crate::view::View;
 
@@ -227,6 +231,51 @@ mod avx2 {
         let s = _mm_add_ps(s, _mm_movehl_ps(s, s));
         let s = _mm_add_ss(s, _mm_shuffle_ps::<0b01>(s, s));
         _mm_cvtss_f32(s)
+    }
+
+    /// One 8-pixel chunk at column `xo` (`len` pixels) of one row.
+    ///
+    /// # Safety
+    /// AVX2/FMA; without `EDGE`, columns `xo - K/2 .. xo + 8 + K/2` of the
+    /// rows are readable; with it, `xo + len <= w`.
+    #[inline]
+    #[target_feature(enable = "avx2,fma,f16c")]
+    unsafe fn chunk<const K: usize, const OB: usize, const EDGE: bool>(
+        acc: &mut [[__m256; K]; OB],
+        gp: &[*const f32; OB],
+        xp: *const f32,
+        xo: usize,
+        len: usize,
+        w: usize,
+    ) {
+        let p = K / 2;
+        let mut gv = [_mm256_setzero_ps(); OB];
+        for o in 0..OB {
+            // SAFETY: lanes below len are inside the row.
+            gv[o] = unsafe {
+                if EDGE {
+                    load8_range(gp[o].add(xo), 0, len)
+                } else {
+                    _mm256_loadu_ps(gp[o].add(xo))
+                }
+            };
+        }
+        for kx in 0..K {
+            let c0 = xo as isize + kx as isize - p as isize;
+            // SAFETY: as the function's contract.
+            let xv = unsafe {
+                if EDGE {
+                    let lo = (-c0).clamp(0, 8) as usize;
+                    let hi = ((w as isize - c0).clamp(0, len as isize) as usize).max(lo);
+                    load8_range(xp.wrapping_offset(c0), lo, hi)
+                } else {
+                    _mm256_loadu_ps(xp.offset(c0))
+                }
+            };
+            for o in 0..OB {
+                acc[o][kx] = _mm256_fmadd_ps(gv[o], xv, acc[o][kx]);
+            }
+        }
     }
 
     /// # Safety
@@ -271,57 +320,52 @@ mod avx2 {
     ) {
         let (cin, w, h) = (x.channels(), x.width(), x.height());
         let p = K / 2;
-        for ci in 0..cin {
-            for ky in 0..K {
-                let mut acc = [[_mm256_setzero_ps(); K]; OB];
-                for y in y0..y0 + rows {
-                    let yy = y + ky;
-                    if yy < p || yy - p >= h {
-                        continue;
-                    }
-                    let xr = x.row(ci, yy - p);
-                    let g: [&[f32]; OB] = core::array::from_fn(|o| dz.row(co0 + o, y));
-                    let mut xo = 0;
-                    while xo < w {
-                        let len = (w - xo).min(8);
-                        let interior = xo >= p && xo + 8 + p <= w;
-                        // SAFETY: full loads only where xo + 8 <= w; the rest
-                        // read only lanes inside the row.
-                        let gv: [__m256; OB] = core::array::from_fn(|o| unsafe {
-                            if len == 8 {
-                                _mm256_loadu_ps(g[o].as_ptr().add(xo))
-                            } else {
-                                load8_range(g[o].as_ptr().add(xo), 0, len)
-                            }
-                        });
-                        for kx in 0..K {
-                            // Columns xo + kx - p + lane, lanes inside the image and below len.
-                            let c0 = xo as isize + kx as isize - p as isize;
-                            // SAFETY: interior chunks lie inside the row; at the
-                            // edges only the in-image lanes are read.
-                            let xv = unsafe {
-                                if interior {
-                                    _mm256_loadu_ps(xr.as_ptr().offset(c0))
-                                } else {
-                                    let lo = (-c0).clamp(0, 8) as usize;
-                                    let hi = ((w as isize - c0).clamp(0, len as isize) as usize).max(lo);
-                                    load8_range(xr.as_ptr().wrapping_offset(c0), lo, hi)
-                                }
-                            };
-                            for o in 0..OB {
-                                acc[o][kx] = _mm256_fmadd_ps(gv[o], xv, acc[o][kx]);
-                            }
+        // Rows in tiles small enough that the block's rows of dz and x stay
+        // in L1 across the (ci, ky) passes; each tile's sums go into dw.
+        let mut yt = y0;
+        while yt < y0 + rows {
+            let yt1 = (yt + ROW_TILE).min(y0 + rows);
+            for ci in 0..cin {
+                for ky in 0..K {
+                    let mut acc = [[_mm256_setzero_ps(); K]; OB];
+                    for y in yt..yt1 {
+                        let yy = y + ky;
+                        if yy < p || yy - p >= h {
+                            continue;
                         }
-                        xo += 8;
+                        let xr = x.row(ci, yy - p);
+                        let mut gp = [core::ptr::null::<f32>(); OB];
+                        for (o, g) in gp.iter_mut().enumerate() {
+                            *g = dz.row(co0 + o, y).as_ptr();
+                        }
+                        let xp = xr.as_ptr();
+                        // SAFETY (every chunk): interior chunks lie inside
+                        // the row; the edge ones read only their in-image lanes.
+                        // The edge chunks in loops of their own, so the
+                        // interior loop keeps its accumulators in registers.
+                        let mut xo = 0;
+                        while xo < w && xo < p {
+                            unsafe { chunk::<K, OB, true>(&mut acc, &gp, xp, xo, (w - xo).min(8), w) };
+                            xo += 8;
+                        }
+                        while xo + 8 + p <= w {
+                            unsafe { chunk::<K, OB, false>(&mut acc, &gp, xp, xo, 8, w) };
+                            xo += 8;
+                        }
+                        while xo < w {
+                            unsafe { chunk::<K, OB, true>(&mut acc, &gp, xp, xo, (w - xo).min(8), w) };
+                            xo += 8;
+                        }
                     }
-                }
-                let cin_k = cin * K * K;
-                for o in 0..OB {
-                    for kx in 0..K {
-                        dw[(co0 + o) * cin_k + (ci * K + ky) * K + kx] += hsum(acc[o][kx]);
+                    let cin_k = cin * K * K;
+                    for o in 0..OB {
+                        for kx in 0..K {
+                            dw[(co0 + o) * cin_k + (ci * K + ky) * K + kx] += hsum(acc[o][kx]);
+                        }
                     }
                 }
             }
+            yt = yt1;
         }
     }
 }
@@ -330,7 +374,7 @@ mod avx2 {
 mod avx512 {
     use core::arch::x86_64::*;
 
-    use super::blocks;
+    use super::{blocks, ROW_TILE};
     use crate::view::View;
 
     /// Lanes `lo .. hi` set.
@@ -340,6 +384,47 @@ mod avx512 {
             0
         } else {
             (((1u32 << hi) - 1) & !((1u32 << lo) - 1)) as __mmask16
+        }
+    }
+
+    /// One 16-pixel chunk at column `xo` (`len` pixels) of one row: every
+    /// column tap of `x` against the block's rows of `dz`.
+    ///
+    /// # Safety
+    /// AVX-512; without `EDGE`, columns `xo - K/2 .. xo + 16 + K/2` of the
+    /// rows are readable; with it, `xo + len <= w`.
+    #[inline]
+    #[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl,avx2,fma,f16c")]
+    unsafe fn chunk<const K: usize, const OB: usize, const EDGE: bool>(
+        acc: &mut [[__m512; K]; OB],
+        gp: &[*const f32; OB],
+        xp: *const f32,
+        xo: usize,
+        len: usize,
+        w: usize,
+    ) {
+        let p = K / 2;
+        let m = if EDGE { lanes(0, len) } else { 0xffff };
+        let mut gv = [_mm512_setzero_ps(); OB];
+        for o in 0..OB {
+            // SAFETY: lanes below len are inside the row.
+            gv[o] = unsafe { _mm512_maskz_loadu_ps(m, gp[o].add(xo)) };
+        }
+        for kx in 0..K {
+            let c0 = xo as isize + kx as isize - p as isize;
+            // SAFETY: as the function's contract.
+            let xv = unsafe {
+                if EDGE {
+                    let lo = (-c0).clamp(0, 16) as usize;
+                    let hi = (w as isize - c0).clamp(0, len as isize) as usize;
+                    _mm512_maskz_loadu_ps(lanes(lo, hi), xp.wrapping_offset(c0))
+                } else {
+                    _mm512_loadu_ps(xp.offset(c0))
+                }
+            };
+            for o in 0..OB {
+                acc[o][kx] = _mm512_fmadd_ps(gv[o], xv, acc[o][kx]);
+            }
         }
     }
 
@@ -369,7 +454,7 @@ mod avx512 {
         match k {
             1 => go!(1, 14, [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14]),
             3 => go!(3, 7, [1, 2, 3, 4, 5, 6, 7]),
-            _ => go!(5, 5, [1, 2, 3, 4, 5]),
+            _ => go!(5, 4, [1, 2, 3, 4]),
         }
     }
 
@@ -385,51 +470,51 @@ mod avx512 {
     ) {
         let (cin, w, h) = (x.channels(), x.width(), x.height());
         let p = K / 2;
-        for ci in 0..cin {
-            for ky in 0..K {
-                let mut acc = [[_mm512_setzero_ps(); K]; OB];
-                for y in y0..y0 + rows {
-                    let yy = y + ky;
-                    if yy < p || yy - p >= h {
-                        continue;
-                    }
-                    let xr = x.row(ci, yy - p);
-                    let g: [&[f32]; OB] = core::array::from_fn(|o| dz.row(co0 + o, y));
-                    let mut xo = 0;
-                    while xo < w {
-                        let len = (w - xo).min(16);
-                        let interior = xo >= p && xo + 16 + p <= w;
-                        let m = lanes(0, len);
-                        // SAFETY: masked lanes are not read.
-                        let gv: [__m512; OB] =
-                            core::array::from_fn(|o| unsafe { _mm512_maskz_loadu_ps(m, g[o].as_ptr().add(xo)) });
-                        for kx in 0..K {
-                            let c0 = xo as isize + kx as isize - p as isize;
-                            // SAFETY: interior chunks lie inside the row; at the
-                            // edges only the in-image lanes are read.
-                            let xv = unsafe {
-                                if interior {
-                                    _mm512_loadu_ps(xr.as_ptr().offset(c0))
-                                } else {
-                                    let lo = (-c0).clamp(0, 16) as usize;
-                                    let hi = (w as isize - c0).clamp(0, len as isize) as usize;
-                                    _mm512_maskz_loadu_ps(lanes(lo, hi), xr.as_ptr().wrapping_offset(c0))
-                                }
-                            };
-                            for o in 0..OB {
-                                acc[o][kx] = _mm512_fmadd_ps(gv[o], xv, acc[o][kx]);
-                            }
+        // Rows in tiles (see the AVX2 block).
+        let mut yt = y0;
+        while yt < y0 + rows {
+            let yt1 = (yt + ROW_TILE).min(y0 + rows);
+            for ci in 0..cin {
+                for ky in 0..K {
+                    let mut acc = [[_mm512_setzero_ps(); K]; OB];
+                    for y in yt..yt1 {
+                        let yy = y + ky;
+                        if yy < p || yy - p >= h {
+                            continue;
                         }
-                        xo += 16;
+                        let xr = x.row(ci, yy - p);
+                        let mut gp = [core::ptr::null::<f32>(); OB];
+                        for (o, g) in gp.iter_mut().enumerate() {
+                            *g = dz.row(co0 + o, y).as_ptr();
+                        }
+                        let xp = xr.as_ptr();
+                        // SAFETY (every chunk): interior chunks lie inside
+                        // the row; the edge ones read only their in-image lanes.
+                        // The edge chunks in loops of their own, so the
+                        // interior loop keeps its accumulators in registers.
+                        let mut xo = 0;
+                        while xo < w && xo < p {
+                            unsafe { chunk::<K, OB, true>(&mut acc, &gp, xp, xo, (w - xo).min(16), w) };
+                            xo += 16;
+                        }
+                        while xo + 16 + p <= w {
+                            unsafe { chunk::<K, OB, false>(&mut acc, &gp, xp, xo, 16, w) };
+                            xo += 16;
+                        }
+                        while xo < w {
+                            unsafe { chunk::<K, OB, true>(&mut acc, &gp, xp, xo, (w - xo).min(16), w) };
+                            xo += 16;
+                        }
                     }
-                }
-                let cin_k = cin * K * K;
-                for o in 0..OB {
-                    for kx in 0..K {
-                        dw[(co0 + o) * cin_k + (ci * K + ky) * K + kx] += _mm512_reduce_add_ps(acc[o][kx]);
+                    let cin_k = cin * K * K;
+                    for o in 0..OB {
+                        for kx in 0..K {
+                            dw[(co0 + o) * cin_k + (ci * K + ky) * K + kx] += _mm512_reduce_add_ps(acc[o][kx]);
+                        }
                     }
                 }
             }
+            yt = yt1;
         }
     }
 }

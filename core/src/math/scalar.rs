@@ -23,6 +23,30 @@ pub fn exp(x: f32) -> f32 {
     p * scale
 }
 
+/// [`exp`] written without branches (selects only), so that loops calling it
+/// vectorise; the same value for every input.
+#[inline(always)]
+pub fn exp_select(x: f32) -> f32 {
+    let valid = x >= EXP_LO;
+    let xc = if valid { x } else { 0.0 };
+    let xc = if xc > EXP_HI { EXP_HI } else { xc };
+    let n = (xc * LOG2E + ROUND_MAGIC) - ROUND_MAGIC;
+    let r = (xc - n * LN2_HI) - n * LN2_LO;
+    let mut p = EXP_C[6];
+    p = p * r + EXP_C[5];
+    p = p * r + EXP_C[4];
+    p = p * r + EXP_C[3];
+    p = p * r + EXP_C[2];
+    p = p * r + EXP_C[1];
+    p = p * r + EXP_C[0];
+    let scale = f32::from_bits(((n as i32 + 127) as u32) << 23);
+    if valid {
+        p * scale
+    } else {
+        0.0
+    }
+}
+
 /// Natural logarithm for `x > 0`. Outside the domain it stays finite:
 /// `x <= 0` or NaN gives `f32::MIN`, `+inf` gives `ln(f32::MAX)`.
 #[inline]

@@ -168,7 +168,12 @@ pub fn fused_grad_scratch_len(m: usize, channels: usize, width: usize) -> usize 
     // (C + 1), their horizontal and vertical sums (2 (C + 1)), alpha (M),
     // d_k (M) and a fallback mask.
     let planes = 1 + (1 + channels) + (1 + channels) + channels + 3 * (channels + 1) + 2 * m + 1;
-    planes.saturating_mul(region_cap(width))
+    planes.saturating_mul(region_cap(width)).saturating_add(row_len(width))
+}
+
+/// A row of the widest region (the temporary row of [`tile_grad`]).
+fn row_len(width: usize) -> usize {
+    GRAD_TILE_W.min(width) + 4 * (MAX_WINDOW - 1)
 }
 
 #[inline(always)]
@@ -235,38 +240,103 @@ pub fn fused_filter_grad(
         return Ok(());
     }
     let FusedGrads { importance, fusion, radiance } = out;
-    versions!(isa, || {
-        let mut fusion = fusion;
-        let ty_first = y0 / GRAD_TILE_H * GRAD_TILE_H;
-        let mut ty = ty_first;
-        while ty < y0 + n {
-            let mut tx = 0;
-            while tx < w {
-                let tile = Rect { y0: ty, y1: (ty + GRAD_TILE_H).min(h), x0: tx, x1: (tx + GRAD_TILE_W).min(w) };
-                let q = Rect { y0: tile.y0.max(y0), y1: tile.y1.min(y0 + n), ..tile };
-                tile_grad(inp, g, tile, q, importance, fusion.as_deref_mut(), radiance, y0, scratch);
-                tx += GRAD_TILE_W;
+    let mut fusion = fusion;
+    let mut ty = y0 / GRAD_TILE_H * GRAD_TILE_H;
+    while ty < y0 + n {
+        let mut tx = 0;
+        while tx < w {
+            let tile = Rect { y0: ty, y1: (ty + GRAD_TILE_H).min(h), x0: tx, x1: (tx + GRAD_TILE_W).min(w) };
+            let q = Rect { y0: tile.y0.max(y0), y1: tile.y1.min(y0 + n), ..tile };
+            let t = TileArgs { inp, g, tile, q, y0 };
+            match isa.isa() {
+                #[cfg(target_arch = "x86_64")]
+                // SAFETY: `isa` is a `Supported` token: this CPU runs the ISA.
+                Isa::Avx2 => unsafe { tile_avx2(&t, importance, fusion.as_deref_mut(), radiance, scratch) },
+                #[cfg(target_arch = "x86_64")]
+                // SAFETY: as above.
+                Isa::Avx512 => unsafe { tile_avx512(&t, importance, fusion.as_deref_mut(), radiance, scratch) },
+                _ => tile_grad(&t, importance, fusion.as_deref_mut(), radiance, scratch),
             }
-            ty += GRAD_TILE_H;
+            tx += GRAD_TILE_W;
         }
-    });
+        ty += GRAD_TILE_H;
+    }
     Ok(())
+}
+
+/// What a tile's gradient reads.
+struct TileArgs<'a, 'b> {
+    inp: &'a FusedInputs<'b, f32>,
+    g: &'a View<'b, f32>,
+    tile: Rect,
+    q: Rect,
+    y0: usize,
+}
+
+/// [`tile_grad`] compiled for AVX2 (the compiler vectorises its row loops).
+///
+/// # Safety
+/// AVX2 and FMA must be supported.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn tile_avx2(
+    t: &TileArgs<'_, '_>,
+    d_imp: &mut ViewMut<'_, f32>,
+    d_fus: Option<&mut ViewMut<'_, f32>>,
+    d_rad: &mut ViewMut<'_, f32>,
+    scratch: &mut [f32],
+) {
+    tile_grad(t, d_imp, d_fus, d_rad, scratch)
+}
+
+/// [`tile_grad`] compiled for AVX-512.
+///
+/// # Safety
+/// AVX-512 F/BW/DQ/VL, AVX2 and FMA must be supported.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl,avx2,fma")]
+unsafe fn tile_avx512(
+    t: &TileArgs<'_, '_>,
+    d_imp: &mut ViewMut<'_, f32>,
+    d_fus: Option<&mut ViewMut<'_, f32>>,
+    d_rad: &mut ViewMut<'_, f32>,
+    scratch: &mut [f32],
+) {
+    tile_grad(t, d_imp, d_fus, d_rad, scratch)
+}
+
+/// `dst[x - bx0] = sum of src over the window of radius r around x` for
+/// columns `bx0 .. bx0 + dst.len()`, clipped to `[0, w)`; `src` holds
+/// columns `ax0 ..`. Added in ascending column order, one shifted row at a
+/// time (contiguous, so it vectorises).
+#[inline(always)]
+fn box_row(src: &[f32], ax0: usize, dst: &mut [f32], bx0: usize, r: usize, w: usize) {
+    dst.fill(0.0);
+    let bx1 = bx0 + dst.len();
+    for d in -(r as isize)..=(r as isize) {
+        let lo = (bx0 as isize).max(-d).min(bx1 as isize) as usize;
+        let hi = (bx1 as isize).min(w as isize - d).max(lo as isize) as usize;
+        if hi == lo {
+            continue;
+        }
+        let s0 = (lo as isize + d) as usize - ax0;
+        for (o, &v) in dst[lo - bx0..hi - bx0].iter_mut().zip(&src[s0..s0 + (hi - lo)]) {
+            *o += v;
+        }
+    }
 }
 
 /// One tile's gradients for its rows `q` (inside the band starting at `y0`).
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 fn tile_grad(
-    inp: &FusedInputs<'_, f32>,
-    g: &View<'_, f32>,
-    tile: Rect,
-    q: Rect,
+    t: &TileArgs<'_, '_>,
     d_imp: &mut ViewMut<'_, f32>,
     d_fus: Option<&mut ViewMut<'_, f32>>,
     d_rad: &mut ViewMut<'_, f32>,
-    y0: usize,
     scratch: &mut [f32],
 ) {
+    use crate::math::scalar::exp_select as ex;
+    let TileArgs { inp, g, tile, q, y0 } = *t;
     let (c, w, h) = (inp.radiance.channels(), inp.radiance.width(), inp.radiance.height());
     let m = inp.sizes.len();
     let cap = region_cap(w);
@@ -279,29 +349,42 @@ fn tile_grad(
     let (uvs, rest) = rest.split_at_mut((c + 1) * cap);
     let (alpha, rest) = rest.split_at_mut(m * cap);
     let (dk, rest) = rest.split_at_mut(m * cap);
-    let fallback = &mut rest[..cap];
-    let alb = |ch: usize, y: usize, x: usize| inp.albedo.as_ref().map_or(1.0, |a| a.row(ch, y)[x]);
+    let (fallback, rest) = rest.split_at_mut(cap);
+    let row_tmp = &mut rest[..row_len(w)];
+    let alb_row = |ch: usize, y: usize| inp.albedo.as_ref().map(|a| a.row(ch, y));
     // The fusion weights over q grown by the largest radius.
     let rmax = inp.sizes.iter().max().copied().unwrap_or(1) / 2;
     let pa = q.grow(rmax, w, h);
+    let paw = pa.w();
     for y in pa.y0..pa.y1 {
-        for x in pa.x0..pa.x1 {
-            let i = pa.at(y, x);
-            match &inp.fusion {
-                None => alpha[i] = 1.0,
-                Some(f) => {
-                    let mut mx = f32::NEG_INFINITY;
-                    for k in 0..m {
-                        mx = mx.max(logit(f.row(k, y)[x]));
+        let o = (y - pa.y0) * paw;
+        match &inp.fusion {
+            None => alpha[o..o + paw].fill(1.0),
+            Some(f) => {
+                let mx = &mut row_tmp[..paw];
+                mx.fill(-LOGIT_LIMIT);
+                for k in 0..m {
+                    for (mv, &v) in mx.iter_mut().zip(&f.row(k, y)[pa.x0..pa.x1]) {
+                        *mv = mv.max(logit(v));
                     }
+                }
+                for k in 0..m {
+                    for ((a, &v), &mv) in
+                        alpha[k * cap + o..k * cap + o + paw].iter_mut().zip(&f.row(k, y)[pa.x0..pa.x1]).zip(mx.iter())
+                    {
+                        *a = ex(logit(v) - mv);
+                    }
+                }
+                for x in 0..paw {
                     let mut sum = 0.0f32;
                     for k in 0..m {
-                        let v = exp(logit(f.row(k, y)[x]) - mx);
-                        alpha[k * cap + i] = v;
-                        sum += v;
+                        sum += alpha[k * cap + o + x];
                     }
-                    for k in 0..m {
-                        alpha[k * cap + i] /= sum;
+                    mx[x] = 1.0 / sum;
+                }
+                for k in 0..m {
+                    for (a, &inv) in alpha[k * cap + o..k * cap + o + paw].iter_mut().zip(mx.iter()) {
+                        *a *= inv;
                     }
                 }
             }
@@ -313,10 +396,12 @@ fn tile_grad(
             d_rad.row_mut(ch, y - y0)[q.x0..q.x1].fill(0.0);
         }
     }
+    let (qw, qh) = (q.w(), q.y1 - q.y0);
     for (kk, &k) in inp.sizes.iter().enumerate() {
         let r = k / 2;
         let p = q.grow(r, w, h);
         let er = p.grow(r, w, h);
+        let (pw, ew) = (p.w(), er.w());
         // The shift: the largest logit of the whole tile and its 2r halo
         // (independent of the band).
         let sr = tile.grow(2 * r, w, h);
@@ -328,156 +413,191 @@ fn tile_grad(
             }
         }
         for y in er.y0..er.y1 {
-            for x in er.x0..er.x1 {
-                e[er.at(y, x)] = exp(logit(imp.row(kk, y)[x]) - mx);
+            let o = (y - er.y0) * ew;
+            for (ev, &v) in e[o..o + ew].iter_mut().zip(&imp.row(kk, y)[er.x0..er.x1]) {
+                *ev = ex(logit(v) - mx);
             }
         }
         // D' and N over p: horizontal sums (rows of er, columns of p), then vertical.
-        let hr = Rect { x0: p.x0, x1: p.x1, ..er };
         for y in er.y0..er.y1 {
-            for x in p.x0..p.x1 {
-                let (lo, hi) = (x.saturating_sub(r), (x + r + 1).min(w));
-                let mut sd = 0.0f32;
-                for xx in lo..hi {
-                    sd += e[er.at(y, xx)];
+            let (o, ho) = ((y - er.y0) * ew, (y - er.y0) * pw);
+            let erow = &e[o..o + ew];
+            box_row(erow, er.x0, &mut hsum[ho..ho + pw], p.x0, r, w);
+            for ch in 0..c {
+                let prod = &mut row_tmp[..ew];
+                for ((t, &ev), &rv) in prod.iter_mut().zip(erow).zip(&inp.radiance.row(ch, y)[er.x0..er.x1]) {
+                    *t = ev * rv;
                 }
-                hsum[hr.at(y, x)] = sd;
-                for ch in 0..c {
-                    let rad = inp.radiance.row(ch, y);
-                    let mut sn = 0.0f32;
-                    for xx in lo..hi {
-                        sn += e[er.at(y, xx)] * rad[xx];
-                    }
-                    hsum[(1 + ch) * cap + hr.at(y, x)] = sn;
-                }
+                box_row(prod, er.x0, &mut hsum[(1 + ch) * cap + ho..(1 + ch) * cap + ho + pw], p.x0, r, w);
             }
         }
         for y in p.y0..p.y1 {
             let (lo, hi) = (y.saturating_sub(r), (y + r + 1).min(h));
-            for x in p.x0..p.x1 {
-                for pl in 0..=c {
-                    let mut sv = 0.0f32;
-                    for yy in lo..hi {
-                        sv += hsum[pl * cap + hr.at(yy, x)];
+            let o = (y - p.y0) * pw;
+            for pl in 0..=c {
+                let dst = &mut dn[pl * cap + o..pl * cap + o + pw];
+                dst.fill(0.0);
+                for yy in lo..hi {
+                    let so = pl * cap + (yy - er.y0) * pw;
+                    for (d, &v) in dst.iter_mut().zip(&hsum[so..so + pw]) {
+                        *d += v;
                     }
-                    dn[pl * cap + p.at(y, x)] = sv;
                 }
             }
         }
         // R, u = g / D', v = sum_c u_c R_c over p; windows too small for the
-        // shift are marked and done directly below.
+        // shift get u = v = 0 here and are done directly below.
+        let mut any_fallback = false;
         for y in p.y0..p.y1 {
-            for x in p.x0..p.x1 {
-                let i = p.at(y, x);
-                let ai = pa.at(y, x);
-                let d = dn[i];
-                if d >= GRAD_TINY {
-                    fallback[i] = 0.0;
-                    let mut v = 0.0f32;
-                    for ch in 0..c {
-                        let rv = dn[(1 + ch) * cap + i] / d;
-                        rr[ch * cap + i] = rv;
-                        let gk = g.row(ch, y)[x] * alb(ch, y, x) * alpha[kk * cap + ai];
-                        let u = gk / d;
-                        uv[ch * cap + i] = u;
-                        v += u * rv;
+            let o = (y - p.y0) * pw;
+            let inv = &mut row_tmp[..pw];
+            for ((iv, fb), &d) in inv.iter_mut().zip(&mut fallback[o..o + pw]).zip(&dn[o..o + pw]) {
+                let small = !(d >= GRAD_TINY);
+                *fb = if small { 1.0 } else { 0.0 };
+                let r = 1.0 / d;
+                *iv = if small { 0.0 } else { r };
+            }
+            any_fallback |= fallback[o..o + pw].iter().any(|&f| f != 0.0);
+            let ao = (y - pa.y0) * paw + (p.x0 - pa.x0);
+            let al = &alpha[kk * cap + ao..kk * cap + ao + pw];
+            uv[c * cap + o..c * cap + o + pw].fill(0.0);
+            for ch in 0..c {
+                let gr = &g.row(ch, y)[p.x0..p.x1];
+                let ar = alb_row(ch, y).map(|a| &a[p.x0..p.x1]);
+                let (nr, rrow) = (&dn[(1 + ch) * cap + o..(1 + ch) * cap + o + pw], ch * cap + o);
+                let (uvc, vrow) = uv.split_at_mut(c * cap);
+                let vrow = &mut vrow[o..o + pw];
+                for x in 0..pw {
+                    let rv = nr[x] * inv[x];
+                    rr[rrow + x] = rv;
+                    let gk = gr[x] * ar.map_or(1.0, |a| a[x]) * al[x];
+                    let u = gk * inv[x];
+                    uvc[ch * cap + o + x] = u;
+                    vrow[x] += u * rv;
+                }
+            }
+        }
+        if any_fallback {
+            for y in p.y0..p.y1 {
+                for x in p.x0..p.x1 {
+                    let i = p.at(y, x);
+                    if fallback[i] != 0.0 {
+                        let rv = direct_r(inp, kk, r, y, x);
+                        for ch in 0..c {
+                            rr[ch * cap + i] = rv[ch];
+                        }
                     }
-                    uv[c * cap + i] = v;
-                } else {
-                    fallback[i] = 1.0;
-                    let rv = direct_r(inp, kk, r, y, x);
-                    for ch in 0..c {
-                        rr[ch * cap + i] = rv[ch];
-                        uv[ch * cap + i] = 0.0;
-                    }
-                    uv[c * cap + i] = 0.0;
                 }
             }
         }
         // U, V over q: horizontal sums (rows of p, columns of q), then vertical.
-        let hq = Rect { x0: q.x0, x1: q.x1, ..p };
         for y in p.y0..p.y1 {
-            for x in q.x0..q.x1 {
-                let (lo, hi) = (x.saturating_sub(r), (x + r + 1).min(w));
-                for pl in 0..=c {
-                    let mut sv = 0.0f32;
-                    for xx in lo..hi {
-                        sv += uv[pl * cap + p.at(y, xx)];
-                    }
-                    uvh[pl * cap + hq.at(y, x)] = sv;
-                }
+            let (o, ho) = ((y - p.y0) * pw, (y - p.y0) * qw);
+            for pl in 0..=c {
+                let (src, dst) = (&uv[pl * cap + o..pl * cap + o + pw], &mut uvh[pl * cap + ho..pl * cap + ho + qw]);
+                box_row(src, p.x0, dst, q.x0, r, w);
             }
         }
         for y in q.y0..q.y1 {
             let (lo, hi) = (y.saturating_sub(r), (y + r + 1).min(h));
-            for x in q.x0..q.x1 {
-                for pl in 0..=c {
-                    let mut sv = 0.0f32;
-                    for yy in lo..hi {
-                        sv += uvh[pl * cap + hq.at(yy, x)];
+            let o = (y - q.y0) * qw;
+            for pl in 0..=c {
+                let dst = &mut uvs[pl * cap + o..pl * cap + o + qw];
+                dst.fill(0.0);
+                for yy in lo..hi {
+                    let so = pl * cap + (yy - p.y0) * qw;
+                    for (d, &v) in dst.iter_mut().zip(&uvh[so..so + qw]) {
+                        *d += v;
                     }
-                    uvs[pl * cap + q.at(y, x)] = sv;
                 }
             }
         }
         // dI, dc and d_k over q.
         for y in q.y0..q.y1 {
-            for x in q.x0..q.x1 {
-                let (i, pi) = (q.at(y, x), p.at(y, x));
-                let ev = e[er.at(y, x)];
-                let mut t = -uvs[c * cap + i];
-                let mut dkv = 0.0f32;
-                for ch in 0..c {
-                    let u = uvs[ch * cap + i];
-                    t += inp.radiance.row(ch, y)[x] * u;
-                    d_rad.row_mut(ch, y - y0)[x] += ev * u;
-                    dkv += g.row(ch, y)[x] * alb(ch, y, x) * rr[ch * cap + pi];
+            let o = (y - q.y0) * qw;
+            let eo = (y - er.y0) * ew + (q.x0 - er.x0);
+            let ev = &e[eo..eo + qw];
+            let po = (y - p.y0) * pw + (q.x0 - p.x0);
+            let t = &mut row_tmp[..qw];
+            for (tv, &v) in t.iter_mut().zip(&uvs[c * cap + o..c * cap + o + qw]) {
+                *tv = -v;
+            }
+            let dkr = &mut dk[kk * cap + o..kk * cap + o + qw];
+            dkr.fill(0.0);
+            for ch in 0..c {
+                let u = &uvs[ch * cap + o..ch * cap + o + qw];
+                let rad = &inp.radiance.row(ch, y)[q.x0..q.x1];
+                let gr = &g.row(ch, y)[q.x0..q.x1];
+                let ar = alb_row(ch, y).map(|a| &a[q.x0..q.x1]);
+                let rrow = &rr[ch * cap + po..ch * cap + po + qw];
+                let drow = &mut d_rad.row_mut(ch, y - y0)[q.x0..q.x1];
+                for x in 0..qw {
+                    t[x] += rad[x] * u[x];
+                    drow[x] += ev[x] * u[x];
+                    dkr[x] += gr[x] * ar.map_or(1.0, |a| a[x]) * rrow[x];
                 }
-                d_imp.row_mut(kk, y - y0)[x] = ev * t;
-                dk[kk * cap + i] = dkv;
+            }
+            for ((d, &evx), &tv) in d_imp.row_mut(kk, y - y0)[q.x0..q.x1].iter_mut().zip(ev).zip(t.iter()) {
+                *d = evx * tv;
             }
         }
         // The windows done directly: their terms, one by one, into q.
-        for py in p.y0..p.y1 {
-            for px in p.x0..p.x1 {
-                let i = p.at(py, px);
-                if fallback[i] == 0.0 {
-                    continue;
-                }
-                let ai = pa.at(py, px);
-                let (wy0, wy1) = (py.saturating_sub(r).max(q.y0), (py + r + 1).min(q.y1));
-                let (wx0, wx1) = (px.saturating_sub(r).max(q.x0), (px + r + 1).min(q.x1));
-                if wy0 >= wy1 || wx0 >= wx1 {
-                    continue;
-                }
-                let (mxw, den) = window_shift(inp, kk, r, py, px);
-                for yy in wy0..wy1 {
-                    for xx in wx0..wx1 {
-                        let wq = exp(logit(imp.row(kk, yy)[xx]) - mxw) / den;
-                        let mut t = 0.0f32;
-                        for ch in 0..c {
-                            let gk = g.row(ch, py)[px] * alb(ch, py, px) * alpha[kk * cap + ai];
-                            let cq = inp.radiance.row(ch, yy)[xx];
-                            t += gk * (cq - rr[ch * cap + i]);
-                            d_rad.row_mut(ch, yy - y0)[xx] += gk * wq;
+        if any_fallback {
+            for py in p.y0..p.y1 {
+                for px in p.x0..p.x1 {
+                    let i = p.at(py, px);
+                    if fallback[i] == 0.0 {
+                        continue;
+                    }
+                    let ai = pa.at(py, px);
+                    let (wy0, wy1) = (py.saturating_sub(r).max(q.y0), (py + r + 1).min(q.y1));
+                    let (wx0, wx1) = (px.saturating_sub(r).max(q.x0), (px + r + 1).min(q.x1));
+                    if wy0 >= wy1 || wx0 >= wx1 {
+                        continue;
+                    }
+                    let (mxw, den) = window_shift(inp, kk, r, py, px);
+                    for yy in wy0..wy1 {
+                        for xx in wx0..wx1 {
+                            let wq = ex(logit(imp.row(kk, yy)[xx]) - mxw) / den;
+                            let mut t = 0.0f32;
+                            for ch in 0..c {
+                                let gk =
+                                    g.row(ch, py)[px] * alb_row(ch, py).map_or(1.0, |a| a[px]) * alpha[kk * cap + ai];
+                                let cq = inp.radiance.row(ch, yy)[xx];
+                                t += gk * (cq - rr[ch * cap + i]);
+                                d_rad.row_mut(ch, yy - y0)[xx] += gk * wq;
+                            }
+                            d_imp.row_mut(kk, yy - y0)[xx] += wq * t;
                         }
-                        d_imp.row_mut(kk, yy - y0)[xx] += wq * t;
                     }
                 }
             }
         }
     }
+    let _ = qh;
     // The fusion logits: dF_k = alpha_k (d_k - sum_j alpha_j d_j).
     if let Some(df) = d_fus {
         for y in q.y0..q.y1 {
-            for x in q.x0..q.x1 {
-                let (i, ai) = (q.at(y, x), pa.at(y, x));
-                let mut dot = 0.0f32;
-                for k in 0..m {
-                    dot += alpha[k * cap + ai] * dk[k * cap + i];
+            let o = (y - q.y0) * qw;
+            let ao = (y - pa.y0) * paw + (q.x0 - pa.x0);
+            let dot = &mut row_tmp[..qw];
+            dot.fill(0.0);
+            for k in 0..m {
+                for ((d, &a), &v) in
+                    dot.iter_mut().zip(&alpha[k * cap + ao..k * cap + ao + qw]).zip(&dk[k * cap + o..k * cap + o + qw])
+                {
+                    *d += a * v;
                 }
-                for k in 0..m {
-                    df.row_mut(k, y - y0)[x] = alpha[k * cap + ai] * (dk[k * cap + i] - dot);
+            }
+            for k in 0..m {
+                let out = &mut df.row_mut(k, y - y0)[q.x0..q.x1];
+                for (((o2, &a), &v), &d) in out
+                    .iter_mut()
+                    .zip(&alpha[k * cap + ao..k * cap + ao + qw])
+                    .zip(&dk[k * cap + o..k * cap + o + qw])
+                    .zip(dot.iter())
+                {
+                    *o2 = a * (v - d);
                 }
             }
         }

@@ -1,0 +1,47 @@
+//! One WSKP training step (forward, SMAPE, the fused filter's gradient,
+//! backward, Adam) on a batch of synthetic crops, the median of REPS steps:
+//! `profile_train [LAYERS] [THREADS] [REPS] [BATCH] [CROP]` (defaults 6, 2,
+//! 20, 8, 128).
+use mcdenoise::nn::loss::Loss;
+use mcdenoise::nn::{Trainer, Workspace};
+use mcdenoise::par::Pool;
+use mcdenoise::wskp;
+use mcdenoise_benches::values;
+use mcdenoise_core::Isa;
+
+fn main() {
+    let arg = |i: usize, d: usize| std::env::args().nth(i).and_then(|v| v.parse().ok()).unwrap_or(d);
+    let (layers, threads, reps, batch, s) = (arg(1, 6), arg(2, 2), arg(3, 20), arg(4, 8), arg(5, 128));
+    let isa = std::env::var("ISA").ok().and_then(|v| Isa::from_name(&v)).unwrap_or(Isa::detect());
+    let net = wskp::net(layers).unwrap();
+    let params = net.init(1);
+    let mut tr = Trainer::new(net, params, batch, s, s, 1e-3, 0.0);
+    for ws in tr.workspaces() {
+        wskp::crop_buffers(ws);
+    }
+    let n = s * s;
+    let x = values(10 * n, 0.0, 1.0, 1);
+    let mut data = values(9 * n, 0.05, 1.0, 2);
+    data[..3 * n].iter_mut().for_each(|v| *v *= 4.0);
+    let pool = Pool::new(threads).unwrap();
+    let fill = |_: usize, ws: &mut Workspace| {
+        ws.input_mut().copy_from_slice(&x);
+        ws.aux[0].copy_from_slice(&data);
+        Ok(())
+    };
+    let head = |_: usize, ws: &mut Workspace| wskp::head(ws, Loss::Smape, 1.0 / batch as f32, isa);
+    let mut times = Vec::new();
+    for _ in 0..reps + 2 {
+        let t = std::time::Instant::now();
+        tr.step(&pool, isa, &fill, &head, true).unwrap();
+        times.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    let mut t = times[2..].to_vec();
+    t.sort_by(f64::total_cmp);
+    eprintln!(
+        "wskp{layers} training step, batch {batch} of {s}x{s}, {threads} threads, {}: median {:.1} ms, fastest {:.1} ms ({reps} steps)",
+        isa.name(),
+        t[t.len() / 2],
+        t[0]
+    );
+}
