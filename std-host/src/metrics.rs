@@ -7,6 +7,7 @@
 //! | relMSE | mean of `(x - r)^2 / (r^2 + 0.01)` on linear values |
 //! | SMAPE | mean of `|x - r| / (|x| + |r| + 0.01)` on linear values |
 //! | RMSE | `sqrt(mean (x - r)^2)` on linear values |
+//! | flicker | of a sequence: `sqrt(mean ((d(x_t) - d(x_{t-1})) - (d(r_t) - d(r_{t-1})))^2)` over frames `t >= 1`, `d` the display map above: the error of the frame-to-frame change (temporal instability beyond the reference's own change) |
 //!
 //! Sums run in f64. Non-finite values count as 0 (the input contract's rule).
 
@@ -36,6 +37,19 @@ fn finite(v: f32) -> f64 {
 /// `clamp(x, 0, 1)^(1/2.2)`.
 pub fn display(v: f32) -> f64 {
     finite(v).clamp(0.0, 1.0).powf(1.0 / 2.2)
+}
+
+/// The mean of `((d(x) - d(px)) - (d(r) - d(pr)))^2` of one frame pair (see
+/// the flicker row above); the sequence's flicker is the square root of its
+/// mean over the frames.
+pub fn flicker_mse(px: &[f32], x: &[f32], pr: &[f32], r: &[f32]) -> f64 {
+    assert!(px.len() == x.len() && pr.len() == r.len() && x.len() == r.len());
+    let mut se = 0.0;
+    for i in 0..x.len() {
+        let d = (display(x[i]) - display(px[i])) - (display(r[i]) - display(pr[i]));
+        se += d * d;
+    }
+    se / x.len().max(1) as f64
 }
 
 /// All metrics of `x` against `r` (3 planes of `w x h` each).

@@ -177,16 +177,17 @@ pub fn score_files(out: &Path, reference: &Path) -> Result<Scores> {
     ))
 }
 
-fn json_scores(name: &str, s: &Scores) -> String {
+fn json_scores(name: &str, s: &Scores, flicker: Option<f64>) -> String {
     let num = |v: f64| if v.is_finite() { format!("{v:.6}") } else { "null".into() };
     format!(
-        "{{\"file\":{},\"psnr\":{},\"ssim\":{},\"relmse\":{},\"smape\":{},\"rmse\":{}}}",
+        "{{\"file\":{},\"psnr\":{},\"ssim\":{},\"relmse\":{},\"smape\":{},\"rmse\":{},\"flicker\":{}}}",
         json_string(name),
         num(s.psnr),
         num(s.ssim),
         num(s.relmse),
         num(s.smape),
-        num(s.rmse)
+        num(s.rmse),
+        flicker.map_or("null".into(), num)
     )
 }
 
@@ -237,33 +238,65 @@ pub fn score_cmd(reference: &Path, out: &Path, json: bool) -> Result<()> {
     };
     let mut all = Vec::new();
     let mut lines = Vec::new();
+    // A sequence (files in name order): the flicker of each frame against the one before.
+    let mut prev: Option<(Vec<f32>, Vec<f32>)> = None;
+    let mut flicker = Vec::new();
     for (o, r) in &pairs {
         if !r.exists() {
             return Err(HostError::read(r, "no reference with this name"));
         }
-        let s = score_files(o, r)?;
+        let of = load_color(o)?;
+        let rf = load_color(r)?;
+        check_same_size(r, (rf.width, rf.height), &of)?;
+        let (ov, rv) = (
+            of.get(crate::frame::Buffer::Color).expect("colour"),
+            rf.get(crate::frame::Buffer::Color).expect("colour"),
+        );
+        let s = metrics::score(ov, rv, of.width, of.height);
+        let fl = match &prev {
+            Some((po, pr)) if po.len() == ov.len() => {
+                let f = metrics::flicker_mse(po, ov, pr, rv);
+                flicker.push(f);
+                Some(f.sqrt())
+            }
+            _ => None,
+        };
+        prev = Some((ov.to_vec(), rv.to_vec()));
         let name = o.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         if json {
-            lines.push(json_scores(&name, &s));
+            lines.push(json_scores(&name, &s, fl));
         } else {
             lines.push(format!(
-                "{:<28} PSNR {:7.3} dB  SSIM {:.4}  relMSE {:.5}  SMAPE {:.5}  RMSE {:.5}",
-                name, s.psnr, s.ssim, s.relmse, s.smape, s.rmse
+                "{:<28} PSNR {:7.3} dB  SSIM {:.4}  relMSE {:.5}  SMAPE {:.5}  RMSE {:.5}{}",
+                name,
+                s.psnr,
+                s.ssim,
+                s.relmse,
+                s.smape,
+                s.rmse,
+                fl.map(|f| format!("  flicker {f:.5}")).unwrap_or_default()
             ));
         }
         all.push(s);
     }
     let mean = mean_scores(&all);
+    let seq_flicker = (!flicker.is_empty()).then(|| (flicker.iter().sum::<f64>() / flicker.len() as f64).sqrt());
     if json {
-        println!("{{\"files\":[{}],\"mean\":{}}}", lines.join(","), json_scores("mean", &mean));
+        println!("{{\"files\":[{}],\"mean\":{}}}", lines.join(","), json_scores("mean", &mean, seq_flicker));
     } else {
         for l in lines {
             println!("{l}");
         }
         if all.len() > 1 {
             println!(
-                "{:<28} PSNR {:7.3} dB  SSIM {:.4}  relMSE {:.5}  SMAPE {:.5}  RMSE {:.5}",
-                "mean", mean.psnr, mean.ssim, mean.relmse, mean.smape, mean.rmse
+                "{:<28} PSNR {:7.3} dB  SSIM {:.4}  relMSE {:.5}  SMAPE {:.5}  RMSE {:.5}{}",
+                "mean",
+                mean.psnr,
+                mean.ssim,
+                mean.relmse,
+                mean.smape,
+                mean.rmse,
+                seq_flicker.map(|f| format!("  flicker {f:.5}")).unwrap_or_default()
             );
         }
     }

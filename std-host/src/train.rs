@@ -297,8 +297,9 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     }
     let t0 = Instant::now();
     let net = wskp::net(a.layers)?;
+    let dirs = sequence_dirs(&a.data)?;
     eprintln!("train wskp: {} layers, {} parameters; loading {}", a.layers, net.params, a.data.display());
-    let seqs: Vec<Sequence> = sequence_dirs(&a.data)?.iter().map(|d| load_sequence(d)).collect::<Result<_>>()?;
+    let seqs: Vec<Sequence> = dirs.iter().map(|d| load_sequence(d)).collect::<Result<_>>()?;
     let samples = wskp_samples(&seqs, a.threads, a.isa)?;
     let s = a.crop;
     if let Some(small) = samples.iter().find(|x| x.w < s || x.h < s) {

@@ -204,3 +204,56 @@ fn a_failed_write_leaves_nothing_behind() {
     let names: Vec<_> = std::fs::read_dir(t.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
     assert_eq!(names.len(), 1, "{names:?}");
 }
+
+#[test]
+fn bad_weights_file() {
+    let t = tempfile::tempdir().unwrap();
+    let w = t.path().join("weights.safetensors");
+    std::fs::write(&w, b"\x10\x00\x00\x00\x00\x00\x00\x00{\"a\":").unwrap();
+    let seq = fixtures().join("seq_small");
+    let out = run(&[
+        "denoise",
+        "--method",
+        "wskp",
+        "--weights",
+        w.to_str().unwrap(),
+        seq.to_str().unwrap(),
+        "-o",
+        t.path().join("o").to_str().unwrap(),
+    ]);
+    assert_fails(&out, 1, "weights.safetensors: not a safetensors file");
+    // A missing file, and --layers out of range.
+    let out = run(&[
+        "denoise",
+        "--method",
+        "wskp",
+        "--weights",
+        "/nonexistent/w.safetensors",
+        seq.to_str().unwrap(),
+        "-o",
+        "x",
+    ]);
+    assert_fails(&out, 1, "/nonexistent/w.safetensors");
+    let out = run(&["denoise", "--method", "wskp", "--layers", "4", seq.to_str().unwrap(), "-o", "x"]);
+    assert_fails(&out, 2, "--layers: expected 3 or 6, got '4'");
+}
+
+#[test]
+fn train_needs_its_arguments() {
+    assert_fails(
+        &run(&["train", "--method", "wskp", "--steps", "3", "-o", "w.safetensors"]),
+        2,
+        "--data DIR is required",
+    );
+    assert_fails(
+        &run(&["train", "--method", "wskp", "--data", "x", "-o", "w.safetensors"]),
+        2,
+        "give --steps N or --minutes M",
+    );
+    assert_fails(&run(&["train", "--method", "nope", "--data", "x"]), 2, "train --method: expected wskp");
+    assert_fails(
+        &run(&["train", "--method", "wskp", "--data", "/nonexistent/d", "--steps", "1", "-o", "w.safetensors"]),
+        1,
+        "/nonexistent/d",
+    );
+}

@@ -1,0 +1,147 @@
+//! Network weights: the safetensors round trip, the RepVGG merge (the
+//! branches summed equal the merged convolution), and bad weight files
+//! (missing tensors, wrong shapes or dtype, NaN, truncation, another
+//! network's file) giving an error that names the file and the tensor.
+
+use mcdenoise::nn::weights::{save, save_params, File, Form, Tensor};
+use mcdenoise::nn::{Conv, Layer, Net, NetDesc};
+use mcdenoise::wskp;
+use mcdenoise_core::conv::{self, Activation, Conv2d};
+use mcdenoise_core::{Isa, F32};
+use mcdenoise_tests::Img;
+
+fn tmp(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("mcdenoise-weights-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d.join(name)
+}
+
+#[test]
+fn branches_and_merged_files_load_to_the_same_network() {
+    let net = wskp::net(3).unwrap();
+    let params = net.init(5);
+    let (pb, pm) = (tmp("b.safetensors"), tmp("m.safetensors"));
+    save_params(&pb, &net, &params, Form::Branches, "wskp", &[("layers", "3".into())]).unwrap();
+    save_params(&pm, &net, &params, Form::Merged, "wskp", &[("layers", "3".into())]).unwrap();
+    let back = File::read(&pb).unwrap().params(&net, "wskp", &[]).unwrap();
+    assert_eq!(back, params, "branches round trip");
+    let merged = File::read(&pm).unwrap().params(&net, "wskp", &[]).unwrap();
+    for i in 0..net.convs.len() {
+        let c = &net.convs[i];
+        let n = c.spec.cout * c.cin * 25;
+        let (mut a, mut b) = (vec![0.0; n], vec![0.0; n]);
+        net.merge(&params, i, &mut a);
+        net.merge(&merged, i, &mut b);
+        for (x, y) in a.iter().zip(&b) {
+            assert!((x - y).abs() <= 1e-6, "layer {i}: merged weights {x} vs {y}");
+        }
+    }
+}
+
+/// A RepVGG block's three convolutions plus the identity, summed, equal the
+/// one merged 5x5 convolution that runs in training and inference.
+#[test]
+fn repvgg_branches_sum_to_the_merged_convolution() {
+    let desc = NetDesc {
+        cin: 6,
+        layers: vec![Layer::Conv(Conv { k: 5, cout: 6, act: Activation::Identity, repvgg: true, bias: false })],
+    };
+    let net = Net::new(desc).unwrap();
+    let params = net.init(9);
+    let (w, h) = (23, 17);
+    let x = Img::random(6, w, h, -1.0, 1.0, 3);
+    let run = |k: usize, weights: &[f32]| {
+        let layer = Conv2d { k, cin: 6, cout: 6, weights, bias: None, act: Activation::Identity, weight_frac: 0 };
+        let mut out = Img::zeros(6, w, h);
+        let mut s = vec![0.0; conv::conv2d_scratch_len::<F32>(k, 6, 6, w)];
+        conv::conv2d::<F32>(Isa::Scalar, &layer, &x.view(), &mut out.view_mut(), 0, &mut s).unwrap();
+        out.data
+    };
+    let c = &net.convs[0];
+    let (n5, n3) = (36 * 25, 36 * 9);
+    let b5 = run(5, &params[c.offset..c.offset + n5]);
+    let b3 = run(3, &params[c.offset + n5..c.offset + n5 + n3]);
+    let b1 = run(1, &params[c.offset + n5 + n3..c.offset + n5 + n3 + 36]);
+    let mut merged = vec![0.0; n5];
+    net.merge(&params, 0, &mut merged);
+    let m = run(5, &merged);
+    for i in 0..m.len() {
+        let sum = b5[i] + b3[i] + b1[i] + x.data[i];
+        assert!((sum - m[i]).abs() <= 1e-5 * (1.0 + sum.abs()), "element {i}: branches {sum} vs merged {}", m[i]);
+    }
+}
+
+fn expect_err(bytes: Vec<u8>, want: &str) {
+    let net = wskp::net(3).unwrap();
+    let path = tmp("bad.safetensors");
+    std::fs::write(&path, &bytes).unwrap();
+    let e = File::read(&path).and_then(|f| f.params(&net, "wskp", &[])).unwrap_err().to_string();
+    assert!(e.contains(want), "expected '{want}' in: {e}");
+    assert!(e.contains("bad.safetensors"), "the error names the file: {e}");
+}
+
+fn file_with(edit: impl FnOnce(&mut Vec<(String, Vec<usize>, Vec<f32>)>), meta: &[(&str, String)]) -> Vec<u8> {
+    let net = wskp::net(3).unwrap();
+    let mut t = mcdenoise::nn::weights::param_tensors(&net, &net.init(1), Form::Branches);
+    edit(&mut t);
+    let tensors: Vec<Tensor<'_>> =
+        t.iter().map(|(n, s, d)| Tensor { name: n.clone(), shape: s.clone(), data: d }).collect();
+    let path = tmp("edit.safetensors");
+    save(&path, &tensors, meta).unwrap();
+    std::fs::read(&path).unwrap()
+}
+
+fn meta() -> Vec<(&'static str, String)> {
+    vec![
+        ("format", "mcdenoise-wskp".into()),
+        ("version", "1".into()),
+        ("form", "branches".into()),
+        ("layers", "3".into()),
+    ]
+}
+
+#[test]
+fn bad_weight_files_name_the_file_and_the_tensor() {
+    expect_err(b"not a safetensors file at all".to_vec(), "not a safetensors file");
+    let good = file_with(|_| {}, &meta());
+    expect_err(good[..good.len() / 2].to_vec(), "not a safetensors file");
+    expect_err(
+        file_with(|t| t.retain(|x| x.0 != "layers.1.conv3.weight"), &meta()),
+        "tensor layers.1.conv3.weight missing",
+    );
+    expect_err(
+        file_with(
+            |t| {
+                let e = t.iter_mut().find(|x| x.0 == "layers.0.conv5.weight").unwrap();
+                e.1 = vec![14, 10, 25];
+            },
+            &meta(),
+        ),
+        "tensor layers.0.conv5.weight has shape [14, 10, 25], expected [14, 10, 5, 5]",
+    );
+    expect_err(
+        file_with(
+            |t| {
+                let e = t.iter_mut().find(|x| x.0 == "layers.2.conv1.weight").unwrap();
+                e.2[3] = f32::NAN;
+            },
+            &meta(),
+        ),
+        "tensor layers.2.conv1.weight holds a non-finite value",
+    );
+    expect_err(
+        file_with(|t| t.push(("extra".into(), vec![1], vec![0.0])), &meta()),
+        "tensor extra is not part of this network",
+    );
+    let mut other = meta();
+    other[0].1 = "mcdenoise-afn".into();
+    expect_err(file_with(|_| {}, &other), "metadata format is 'mcdenoise-afn', expected 'mcdenoise-wskp'");
+    // A 6-layer file for the 3-layer network: the first missing tensor named.
+    let net6 = wskp::net(6).unwrap();
+    let path = tmp("six.safetensors");
+    save_params(&path, &net6, &net6.init(1), Form::Branches, "wskp", &[("layers", "6".into())]).unwrap();
+    expect_err(
+        std::fs::read(&path).unwrap(),
+        "tensor layers.2.conv5.weight has shape [14, 14, 5, 5], expected [12, 14, 5, 5]",
+    );
+}
