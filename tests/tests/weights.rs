@@ -145,3 +145,61 @@ fn bad_weight_files_name_the_file_and_the_tensor() {
         "tensor layers.2.conv5.weight has shape [14, 14, 5, 5], expected [12, 14, 5, 5]",
     );
 }
+
+/// The PyTorch peer (tools/torch_wskp.py, `fixture`) computed the network's
+/// output and the fused filter's in float64 for weights and one 17x13 frame
+/// (tests/fixtures/wskp_torch/): ours, in f32 on every ISA, from the
+/// branches file and from the merged file, agree.
+#[test]
+fn pytorch_forward_matches_ours() {
+    use mcdenoise::methods::{context, Settings};
+    use mcdenoise::nn::infer::Inference;
+    use mcdenoise::precision::Planes;
+    use mcdenoise_core::softmax::{self, FusedInputs, WindowPath};
+    use mcdenoise_core::{View, ViewMut};
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/wskp_torch");
+    let case = File::read(&dir.join("case.safetensors")).unwrap();
+    let (w, h) = (17, 13);
+    let x = case.tensor("x", &[10, h, w]).unwrap();
+    let c = case.tensor("c", &[3, h, w]).unwrap();
+    let alb = case.tensor("albedo", &[3, h, w]).unwrap();
+    for layers in [3, 6] {
+        let want_logits = case.tensor(&format!("logits{layers}"), &[12, h, w]).unwrap();
+        let want_out = case.tensor(&format!("out{layers}"), &[3, h, w]).unwrap();
+        let net = wskp::net(layers).unwrap();
+        for file in [format!("wskp{layers}.safetensors"), format!("wskp{layers}_merged.safetensors")] {
+            let params = File::read(&dir.join(&file)).unwrap().params(&net, "wskp", &[]).unwrap();
+            for isa in mcdenoise_tests::isas_under_test() {
+                let mut ctx = context(&Settings { isa, threads: 2, ..Settings::default() }).unwrap();
+                let mut inf = Inference::<F32>::new(&net, &params, None, None).unwrap();
+                let logits = inf.run(&mut ctx, Planes::from_vec(10, w, h, x.clone())).unwrap().data.to_vec();
+                let peak = want_logits.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+                for (i, (a, b)) in logits.iter().zip(&want_logits).enumerate() {
+                    assert!((a - b).abs() <= 2e-5 * peak, "{file} {isa:?}: logit {i} is {a}, PyTorch {b}");
+                }
+                let lv = View::new(&logits, 12, w, h).unwrap();
+                let inp = FusedInputs {
+                    sizes: &wskp::SIZES,
+                    importance: lv.channels_range(0, 6).unwrap(),
+                    fusion: Some(lv.channels_range(6, 6).unwrap()),
+                    albedo: Some(View::new(&alb, 3, w, h).unwrap()),
+                    radiance: View::new(&c, 3, w, h).unwrap(),
+                };
+                let mut out = vec![0.0f32; 3 * w * h];
+                let mut s = vec![0.0; softmax::fused_scratch_len::<F32>(WindowPath::Separable, &wskp::SIZES, 3, w)];
+                softmax::fused_filter::<F32>(
+                    isa,
+                    WindowPath::Separable,
+                    &inp,
+                    &mut ViewMut::new(&mut out, 3, w, h).unwrap(),
+                    0,
+                    &mut s,
+                )
+                .unwrap();
+                for (i, (a, b)) in out.iter().zip(&want_out).enumerate() {
+                    assert!((a - b).abs() <= 1e-4 * (1.0 + b.abs()), "{file} {isa:?}: output {i} is {a}, PyTorch {b}");
+                }
+            }
+        }
+    }
+}
