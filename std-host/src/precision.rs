@@ -98,6 +98,10 @@ pub trait HostPrecision:
     fn store_as_f16(_d: &[Self::Store]) -> Option<&[half::f16]> {
         None
     }
+    /// An f32 output view as one of the storage type, when that is f32.
+    fn as_store_view_mut<'a, 'b>(_v: &'b mut ViewMut<'a, f32>) -> Option<&'b mut ViewMut<'a, Self::Store>> {
+        None
+    }
 }
 
 impl HostPrecision for F32 {
@@ -112,6 +116,9 @@ impl HostPrecision for F32 {
     }
     fn store_as_f32(d: &[f32]) -> Option<&[f32]> {
         Some(d)
+    }
+    fn as_store_view_mut<'a, 'b>(v: &'b mut ViewMut<'a, f32>) -> Option<&'b mut ViewMut<'a, f32>> {
+        Some(v)
     }
 }
 

@@ -173,6 +173,7 @@ struct Sample {
 
 /// WSKP's samples: `[x (10), c (3), a + EPS (3), ref (3)]`.
 fn wskp_samples(seqs: &[Sequence], threads: usize, isa: Isa) -> Result<Vec<Sample>> {
+    let pool = crate::par::Pool::new(threads).map_err(HostError::Usage)?;
     let mut out = Vec::new();
     for s in seqs {
         let ta = accumulate(s, threads, isa)?;
@@ -183,7 +184,7 @@ fn wskp_samples(seqs: &[Sequence], threads: usize, isa: Isa) -> Result<Vec<Sampl
             let (x, rest) = data.split_at_mut(10 * n);
             let (c, rest) = rest.split_at_mut(3 * n);
             let (alb, rf) = rest.split_at_mut(3 * n);
-            wskp::inputs(f, t, x, c, alb)?;
+            wskp::inputs(&pool, isa, f, t, x, c, alb)?;
             rf.copy_from_slice(r);
             out.push(Sample { w: f.width, h: f.height, data });
         }

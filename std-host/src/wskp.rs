@@ -63,25 +63,61 @@ pub fn check_inputs(f: &Frame) -> Result<()> {
 
 /// The network input, demodulated irradiance and remodulation albedo of a
 /// frame from its accumulated radiance `t` (3 planes): `x` (10 planes), `c`
-/// (3), `alb` (3, `a + EPS`).
-pub fn inputs(f: &Frame, t: &[f32], x: &mut [f32], c: &mut [f32], alb: &mut [f32]) -> Result<()> {
+/// (3), `alb` (3, `a + EPS`). Runs of pixels in parallel on `pool`; the
+/// gamma through the core's tone map on `isa` (its SIMD `pow`).
+#[allow(clippy::too_many_arguments)]
+pub fn inputs(
+    pool: &crate::par::Pool,
+    isa: mcdenoise_core::Isa,
+    f: &Frame,
+    t: &[f32],
+    x: &mut [f32],
+    c: &mut [f32],
+    alb: &mut [f32],
+) -> Result<()> {
     let n = f.width * f.height;
     let a = f.require(Buffer::Albedo, "wskp")?;
     let nrm = f.require(Buffer::Normal, "wskp")?;
     let d = f.require(Buffer::Depth, "wskp")?;
-    for i in 0..3 * n {
-        let tv = t[i];
-        x[i] = tv.clamp(0.0, 1.0).powf(1.0 / 2.2);
-        x[3 * n + i] = a[i];
-        x[6 * n + i] = nrm[i] * 0.5 + 0.5;
-        alb[i] = a[i] + EPS;
-        c[i] = tv / alb[i];
-    }
+    isa.check()?;
     let (lo, hi) = d.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &v| (l.min(v), h.max(v)));
     let span = hi - lo;
-    for i in 0..n {
-        x[9 * n + i] = if span > 0.0 { (d[i] - lo) / span } else { 0.0 };
-    }
+    let inv = if span > 0.0 { 1.0 / span } else { 0.0 };
+    let mut planes: Vec<&mut [f32]> = x.chunks_mut(n).collect();
+    planes.extend(c.chunks_mut(n));
+    planes.extend(alb.chunks_mut(n));
+    pool.planes(planes, 1 << 14, |start, runs| {
+        let len = runs[0].len();
+        fn seg(v: &[f32], ch: usize, n: usize, start: usize, len: usize) -> &[f32] {
+            &v[ch * n + start..ch * n + start + len]
+        }
+        for ch in 0..3 {
+            let tv = seg(t, ch, n, start, len);
+            let src = View::new(tv, 1, len, 1).expect("a run");
+            let dst = &mut ViewMut::new(runs[ch], 1, len, 1).expect("a run");
+            mcdenoise_core::tonemap::map::<F32>(
+                isa,
+                mcdenoise_core::tonemap::Map::Gamma { gamma: 2.2, clamp: true },
+                &src,
+                dst,
+            )
+            .expect("checked ISA and shapes");
+            runs[3 + ch].copy_from_slice(seg(a, ch, n, start, len));
+            for (o, &v) in runs[6 + ch].iter_mut().zip(seg(nrm, ch, n, start, len)) {
+                *o = v * 0.5 + 0.5;
+            }
+            let (cs, als) = runs[10..].split_at_mut(3);
+            for (((co, ao), &tv), &av) in
+                cs[ch].iter_mut().zip(als[ch].iter_mut()).zip(tv).zip(seg(a, ch, n, start, len))
+            {
+                *ao = av + EPS;
+                *co = tv / *ao;
+            }
+        }
+        for (o, &v) in runs[9].iter_mut().zip(seg(d, 0, n, start, len)) {
+            *o = (v - lo) * inv;
+        }
+    });
     Ok(())
 }
 
@@ -143,7 +179,26 @@ pub struct Wskp<P: HostPrecision> {
     params: Vec<f32>,
     ta: TemporalAccumulation<P>,
     infer: Option<Inference<P>>,
-    bufs: Option<(Vec<f32>, Vec<f32>, Vec<f32>)>,
+    bufs: Option<Bufs>,
+    /// The network input, radiance and albedo in the precision (not f32).
+    stored: Option<Stored<P::Store>>,
+}
+
+/// The network input, radiance and albedo stored in a precision other than f32.
+type Stored<T> = (Vec<T>, Vec<T>, Vec<T>);
+
+/// The f32 buffers a frame needs, kept from frame to frame.
+struct Bufs {
+    ta: Vec<f32>,
+    x: Vec<f32>,
+    c: Vec<f32>,
+    alb: Vec<f32>,
+}
+
+impl Bufs {
+    fn new(n: usize) -> Bufs {
+        Bufs { ta: vec![0.0; 3 * n], x: vec![0.0; 10 * n], c: vec![0.0; 3 * n], alb: vec![0.0; 3 * n] }
+    }
 }
 
 impl<P: HostPrecision> Wskp<P> {
@@ -162,7 +217,7 @@ impl<P: HostPrecision> Wskp<P> {
         let mut plan = ta.plan().clone();
         plan.built.push(if layers == 6 { "ImportanceNet (6 layers)" } else { "ImportanceNet (3 layers)" });
         plan.built.push("fused importance filter (sizes 3..13)");
-        Ok(Wskp { plan, net, params, ta, infer: None, bufs: None })
+        Ok(Wskp { plan, net, params, ta, infer: None, bufs: None, stored: None })
     }
 }
 
@@ -177,56 +232,89 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
         check_inputs(f)?;
         let (w, h) = (f.width, f.height);
         let n = w * h;
+        let isa = ctx.isa;
         let (color, _) = self.ta.step(f, ctx, t)?;
-        let ta = t.time("decode", || color.decode::<P>());
-        let (x, c, alb) = self.bufs.get_or_insert_with(|| (vec![0.0; 10 * n], vec![0.0; 3 * n], vec![0.0; 3 * n]));
-        if x.len() != 10 * n {
-            *x = vec![0.0; 10 * n];
-            *c = vec![0.0; 3 * n];
-            *alb = vec![0.0; 3 * n];
+        let bufs = self.bufs.get_or_insert_with(|| Bufs::new(n));
+        if bufs.x.len() != 10 * n {
+            *bufs = Bufs::new(n);
         }
-        t.time("network inputs", || inputs(f, &ta, x, c, alb))?;
+        // The accumulated colour in f32: borrowed when that is the storage.
+        let ta: &[f32] = match P::store_as_f32(&color.data) {
+            Some(v) => v,
+            None => {
+                t.time("decode", || P::decode(&color.data, &mut bufs.ta, color.frac));
+                &bufs.ta
+            }
+        };
+        t.time("network inputs", || inputs(&ctx.pool, isa, f, ta, &mut bufs.x, &mut bufs.c, &mut bufs.alb))?;
         if self.infer.is_none() {
             // Fixed point: the formats from an f32 run on the first frame.
             let ranges = if P::NAME == "fixed" {
                 let mut f32net = Inference::<F32>::new(&self.net, &self.params, None, None)?;
-                Some(f32net.ranges(ctx, Planes::<f32>::from_vec(10, w, h, x.clone()))?)
+                Some(f32net.ranges(ctx, Planes::<f32>::from_vec(10, w, h, bufs.x.clone()))?)
             } else {
                 None
             };
-            self.infer = Some(Inference::<P>::new(
-                &self.net,
-                &self.params,
-                ranges.as_deref(),
-                Some(mcdenoise_core::fixed::LOGIT_FRAC),
-            )?);
+            let logit_frac = Some(mcdenoise_core::fixed::LOGIT_FRAC);
+            self.infer = Some(Inference::<P>::new(&self.net, &self.params, ranges.as_deref(), logit_frac)?);
         }
         let infer = self.infer.as_mut().expect("just built");
-        let mut xin = Planes::<P::Store>::new(10, w, h).with_frac(infer.input_frac());
-        P::encode(x, &mut xin.data, xin.frac);
-        let cs = Planes::<P::Store>::encode_as::<P>(3, w, h, c, Kind::Image);
-        let als = Planes::<P::Store>::encode_as::<P>(3, w, h, alb, Kind::Plain);
-        let logits = t.time("ImportanceNet", || infer.run(ctx, xin))?;
+        // The filter's inputs and output in the precision (the f32 buffers
+        // themselves in f32), kept from frame to frame.
+        let xf = infer.input_frac();
+        let (cf, af) = (P::choose_frac(&bufs.c, Kind::Image), P::choose_frac(&bufs.alb, Kind::Plain));
+        let (xs, cs, als) = match (P::borrow_f32(&bufs.x), P::borrow_f32(&bufs.c), P::borrow_f32(&bufs.alb)) {
+            (Some(x), Some(c), Some(a)) => (x, c, a),
+            _ => {
+                let st = self.stored.get_or_insert_with(|| (Vec::new(), Vec::new(), Vec::new()));
+                t.time("encode", || {
+                    for (dst, src, frac) in
+                        [(&mut st.0, &bufs.x, xf), (&mut st.1, &bufs.c, cf), (&mut st.2, &bufs.alb, af)]
+                    {
+                        dst.resize(src.len(), P::Store::default());
+                        P::encode(src, dst, frac);
+                    }
+                });
+                (&st.0[..], &st.1[..], &st.2[..])
+            }
+        };
+        let xv = View::new(xs, 10, w, h)?.with_frac(xf);
+        let logits = t.time("ImportanceNet", || infer.run_view(ctx, xv))?;
         let lv = logits.view();
         let inp = FusedInputs {
             sizes: &SIZES,
             importance: lv.channels_range(0, 6)?,
             fusion: Some(lv.channels_range(6, 6)?),
-            albedo: Some(als.view()),
-            radiance: cs.view(),
+            albedo: Some(View::new(als, 3, w, h)?.with_frac(af)),
+            radiance: View::new(cs, 3, w, h)?.with_frac(cf),
         };
         // The output format: the demodulated input's, rescaled by the albedo's
         // largest value.
-        let amax = alb.iter().fold(0.0f32, |m, v| m.max(v.abs()));
-        let frac = cs.frac - (amax.max(1.0).log2().ceil() as i8);
-        let mut out = Planes::<P::Store>::new(3, w, h).with_frac(frac);
-        let isa = ctx.isa;
+        let amax = bufs.alb.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        let frac = cf - (amax.max(1.0).log2().ceil() as i8);
+        let mut out = vec![0.0f32; 3 * n];
         let len = softmax::fused_scratch_len::<P>(WindowPath::Separable, &SIZES, 3, w);
-        t.time("fused filter", || {
-            ctx.pool.bands(out.view_mut(), 48, &mut ctx.scratch, len, |b, y0, s| {
-                softmax::fused_filter::<P>(isa, WindowPath::Separable, &inp, b, y0, s)
-            })
-        })?;
-        Ok(t.time("decode", || out.decode::<P>()))
+        match P::borrow_f32(&out).is_some() {
+            // f32: the filter writes the returned frame itself.
+            true => {
+                let mut ov = ViewMut::new(&mut out, 3, w, h)?;
+                let store: &mut ViewMut<'_, P::Store> = P::as_store_view_mut(&mut ov).expect("f32 storage");
+                t.time("fused filter", || {
+                    ctx.pool.bands(store.reborrow(), 48, &mut ctx.scratch, len, |b, y0, s| {
+                        softmax::fused_filter::<P>(isa, WindowPath::Separable, &inp, b, y0, s)
+                    })
+                })?;
+            }
+            false => {
+                let mut o = Planes::<P::Store>::new(3, w, h).with_frac(frac);
+                t.time("fused filter", || {
+                    ctx.pool.bands(o.view_mut(), 48, &mut ctx.scratch, len, |b, y0, s| {
+                        softmax::fused_filter::<P>(isa, WindowPath::Separable, &inp, b, y0, s)
+                    })
+                })?;
+                t.time("decode", || P::decode(&o.data, &mut out, o.frac));
+            }
+        }
+        Ok(out)
     }
 }

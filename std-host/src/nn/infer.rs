@@ -10,6 +10,7 @@
 
 use mcdenoise_core::conv::{self, Conv2d};
 use mcdenoise_core::pool::{self, grad as pgrad, Reduce};
+use mcdenoise_core::View;
 
 use super::{Net, Node};
 use crate::error::{HostError, Result};
@@ -33,6 +34,15 @@ pub struct Inference<P: HostPrecision> {
     bufs: Vec<Option<Planes<P::Store>>>,
     free: Vec<Planes<P::Store>>,
     last_use: Vec<usize>,
+}
+
+/// Tensor `t`: the borrowed input, or a live buffer.
+fn src_of<'a, T: bytemuck::Pod + Default>(bufs: &'a [Option<Planes<T>>], t: usize, input: View<'a, T>) -> View<'a, T> {
+    if t == 0 {
+        input
+    } else {
+        bufs[t].as_ref().expect("a live tensor").view()
+    }
 }
 
 impl<P: HostPrecision> Inference<P> {
@@ -120,11 +130,19 @@ impl<P: HostPrecision> Inference<P> {
     /// Runs the network on `input` (the network's input channels, stored in
     /// `P` with [`Inference::input_frac`]); the output stays until the next run.
     pub fn run(&mut self, ctx: &mut Ctx, input: Planes<P::Store>) -> Result<&Planes<P::Store>> {
-        let (w, h) = (input.width, input.height);
-        if input.channels != self.net.desc.cin {
+        let view = View::new(&input.data, input.channels, input.width, input.height)?.with_frac(input.frac);
+        self.run_view(ctx, view)?;
+        Ok(self.bufs.last().and_then(|b| b.as_ref()).expect("the output is live"))
+    }
+
+    /// [`Inference::run`] on a borrowed input (no copy of it is made).
+    pub fn run_view(&mut self, ctx: &mut Ctx, input: View<'_, P::Store>) -> Result<&Planes<P::Store>> {
+        let (w, h) = (input.width(), input.height());
+        if input.channels() != self.net.desc.cin {
             return Err(HostError::Usage(format!(
                 "network input: {} channels, expected {}",
-                input.channels, self.net.desc.cin
+                input.channels(),
+                self.net.desc.cin
             )));
         }
         for b in self.bufs.iter_mut() {
@@ -132,7 +150,6 @@ impl<P: HostPrecision> Inference<P> {
                 self.free.push(p);
             }
         }
-        self.bufs[0] = Some(input);
         let isa = ctx.isa;
         let nodes = self.net.nodes.clone();
         for (n, node) in nodes.iter().enumerate() {
@@ -156,26 +173,30 @@ impl<P: HostPrecision> Inference<P> {
                         act: c.spec.act,
                         weight_frac: wt.frac,
                     };
-                    let src = self.bufs[x].as_ref().expect("live input").view();
+                    let src = src_of(&self.bufs, x, input);
                     let len = conv::conv2d_scratch_len::<P>(c.k(), c.cin, c.spec.cout, w);
                     ctx.pool.bands(out.view_mut(), 1, &mut ctx.scratch, len, |b, y0, s| {
                         conv::conv2d::<P>(isa, &layer, &src, b, y0, s)
                     })?;
                 }
                 Node::Pool { max, x, .. } => {
-                    let src = self.bufs[x].as_ref().expect("live input").view();
+                    let src = src_of(&self.bufs, x, input);
                     let op = if max { Reduce::Max } else { Reduce::Mean };
                     ctx.pool.bands(out.view_mut(), 1, &mut ctx.scratch, 0, |b, y0, _| {
                         pool::reduce2x2::<P>(isa, op, &src, b, y0)
                     })?;
                 }
                 Node::Up { bilinear, x, .. } => {
-                    let src = self.bufs[x].as_ref().expect("live input").view();
+                    let src = src_of(&self.bufs, x, input);
                     if bilinear {
                         // The bilinear upsample is an f32 operator: through f32 and back.
-                        let s = self.bufs[x].as_ref().expect("live input");
-                        let mut s32 = Planes::<f32>::new(s.channels, s.width, s.height);
-                        P::decode(&s.data, &mut s32.data, s.frac);
+                        let mut s32 = Planes::<f32>::new(src.channels(), src.width(), src.height());
+                        for ch in 0..src.channels() {
+                            for y in 0..src.height() {
+                                let o = (ch * src.height() + y) * src.width();
+                                P::decode(src.row(ch, y), &mut s32.data[o..o + src.width()], src.frac());
+                            }
+                        }
                         let sv = s32.view();
                         let mut o32 = Planes::<f32>::new(out.channels, tw, th);
                         ctx.pool.bands(o32.view_mut(), 2, &mut ctx.scratch, 0, |b, y0, _| {
@@ -189,12 +210,17 @@ impl<P: HostPrecision> Inference<P> {
                     }
                 }
                 Node::Concat { a, b, .. } => {
-                    let (pa, pb) = (self.bufs[a].as_ref().expect("live"), self.bufs[b].as_ref().expect("live"));
-                    let na = pa.data.len();
-                    out.data[..na].copy_from_slice(&pa.data);
-                    out.data[na..].copy_from_slice(&pb.data);
-                    if pa.frac != pb.frac {
+                    let (va, vb) = (src_of(&self.bufs, a, input), src_of(&self.bufs, b, input));
+                    if va.frac() != vb.frac() {
                         return Err(HostError::Usage("concat of fixed-point tensors in different formats".into()));
+                    }
+                    let mut ov = out.view_mut();
+                    for (c0, v) in [(0, va), (va.channels(), vb)] {
+                        for ch in 0..v.channels() {
+                            for y in 0..v.height() {
+                                ov.row_mut(c0 + ch, y).copy_from_slice(v.row(ch, y));
+                            }
+                        }
                     }
                 }
             }
@@ -213,6 +239,11 @@ impl<P: HostPrecision> Inference<P> {
     /// Each tensor's largest magnitude on `input` (f32 runs only), for the
     /// fixed-point formats.
     pub fn ranges(&mut self, ctx: &mut Ctx, input: Planes<P::Store>) -> Result<Vec<f32>> {
+        let input_max = {
+            let mut v = vec![0.0f32; input.data.len()];
+            P::decode(&input.data, &mut v, input.frac);
+            v.iter().fold(0.0f32, |m, x| m.max(x.abs()))
+        };
         let nt = self.net.tensors.len();
         let saved = std::mem::replace(&mut self.last_use, vec![usize::MAX; nt]);
         let r = self.run(ctx, input).map(|_| ());
@@ -221,7 +252,11 @@ impl<P: HostPrecision> Inference<P> {
         Ok(self
             .bufs
             .iter()
-            .map(|b| {
+            .enumerate()
+            .map(|(t, b)| {
+                if t == 0 {
+                    return input_max;
+                }
                 b.as_ref().map_or(0.0, |p| {
                     let mut v = vec![0.0f32; p.data.len()];
                     P::decode(&p.data, &mut v, p.frac);
