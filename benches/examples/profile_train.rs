@@ -3,7 +3,7 @@
 //! `profile_train [LAYERS] [THREADS] [REPS] [BATCH] [CROP]` (defaults 6, 2,
 //! 20, 8, 128).
 use mcdenoise::nn::loss::Loss;
-use mcdenoise::nn::{Trainer, Workspace};
+use mcdenoise::nn::{Nets, Trainer, Workspace};
 use mcdenoise::par::Pool;
 use mcdenoise::wskp;
 use mcdenoise_benches::values;
@@ -16,20 +16,22 @@ fn main() {
     let net = wskp::net(layers).unwrap();
     let params = net.init(1);
     let mut tr = Trainer::new(net, params, batch, s, s, 1e-3, 0.0);
-    for ws in tr.workspaces() {
-        wskp::crop_buffers(ws);
+    for wss in tr.workspaces() {
+        wskp::crop_buffers(&mut wss[0]);
     }
     let n = s * s;
     let x = values(10 * n, 0.0, 1.0, 1);
     let mut data = values(9 * n, 0.05, 1.0, 2);
     data[..3 * n].iter_mut().for_each(|v| *v *= 4.0);
     let pool = Pool::new(threads).unwrap();
-    let fill = |_: usize, ws: &mut Workspace| {
+    let fill = |_: usize, wss: &mut [Workspace]| {
+        let ws = &mut wss[0];
         ws.input_mut().copy_from_slice(&x);
         ws.aux[0].copy_from_slice(&data);
         Ok(())
     };
-    let head = |_: usize, ws: &mut Workspace| wskp::head(ws, Loss::Smape, 1.0 / batch as f32, isa);
+    let head =
+        |_: usize, _: &Nets<'_>, wss: &mut [Workspace]| wskp::head(&mut wss[0], Loss::Smape, 1.0 / batch as f32, isa);
     let mut times = Vec::new();
     for _ in 0..reps + 2 {
         let t = std::time::Instant::now();

@@ -28,7 +28,7 @@ use crate::methods::{context, Denoiser, Settings, TemporalAccumulation, Timings}
 use crate::metrics;
 use crate::nn::loss::Loss;
 use crate::nn::weights::{self, File, Form, Tensor};
-use crate::nn::{Net, Rng, Trainer, Workspace};
+use crate::nn::{Net, Nets, Rng, Trainer, Workspace};
 use crate::precision::PrecisionKind;
 use crate::run::list_inputs;
 use crate::wskp;
@@ -271,7 +271,7 @@ fn checkpoint_path(out: &Path) -> PathBuf {
 }
 
 fn save_checkpoint(path: &Path, tr: &Trainer, step: u64, rng: &Rng, meta: &[(&str, String)]) -> Result<()> {
-    let owned = weights::param_tensors(&tr.net, &tr.params, Form::Branches);
+    let owned = weights::param_tensors(tr.net(), &tr.params, Form::Branches);
     let mut tensors: Vec<Tensor<'_>> =
         owned.iter().map(|(n, s, d)| Tensor { name: n.clone(), shape: s.clone(), data: d }).collect();
     tensors.push(Tensor { name: "adam.m".into(), shape: vec![tr.adam.m.len()], data: &tr.adam.m });
@@ -339,8 +339,8 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     if let Some((m, v, t)) = adam_state {
         (tr.adam.m, tr.adam.v, tr.adam.t) = (m, v, t);
     }
-    for ws in tr.workspaces() {
-        wskp::crop_buffers(ws);
+    for wss in tr.workspaces() {
+        wskp::crop_buffers(&mut wss[0]);
     }
     let pool = crate::par::Pool::new(a.threads).map_err(HostError::Usage)?;
     let ckpt = checkpoint_path(&a.out);
@@ -373,14 +373,15 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             break;
         }
         let picks: Vec<CropAt> = (0..a.batch).map(|_| draw(&mut rng, &samples, s)).collect();
-        let fill = |i: usize, ws: &mut Workspace| -> Result<()> {
+        let fill = |i: usize, wss: &mut [Workspace]| -> Result<()> {
+            let ws = &mut wss[0];
             let at = picks[i];
             let sm = &samples[at.frame];
             crop(sm, at, s, 0, 10, ws.input_mut());
             crop(sm, at, s, 10, 19, &mut ws.aux[0]);
             Ok(())
         };
-        let head = |_: usize, ws: &mut Workspace| wskp::head(ws, loss, scale, isa);
+        let head = |_: usize, _: &Nets<'_>, wss: &mut [Workspace]| wskp::head(&mut wss[0], loss, scale, isa);
         let st = tr.step(&pool, a.isa, &fill, &head, true)?;
         step += 1;
         ema = Some(ema.map_or(st.loss, |e| 0.98 * e + 0.02 * st.loss));
@@ -420,7 +421,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     save_checkpoint(&ckpt, &tr, step, &rng, std::slice::from_ref(&layers_meta))?;
     weights::save_params(
         &a.out,
-        &tr.net,
+        tr.net(),
         &tr.params,
         Form::Branches,
         "wskp",

@@ -62,6 +62,12 @@ pub enum Layer {
     Save,
     /// Pops the skip stack and appends that tensor's channels.
     Concat,
+    /// Marks the current tensor as an output of the network (a head); the
+    /// last tensor always is one, after every marked one.
+    Output,
+    /// Pops the skip stack and makes that tensor the current one (to branch
+    /// a head off and continue from before it).
+    Pop,
 }
 
 /// A network: its input channels and layers.
@@ -164,6 +170,8 @@ pub struct Net {
     pub params: usize,
     /// How many nodes read each tensor.
     consumers: Vec<usize>,
+    /// The output tensors, in order (the last is the final tensor).
+    outputs: Vec<usize>,
 }
 
 impl Net {
@@ -174,6 +182,7 @@ impl Net {
         let mut nodes = Vec::new();
         let mut convs: Vec<ConvInfo> = Vec::new();
         let mut stack: Vec<usize> = Vec::new();
+        let mut outputs: Vec<usize> = Vec::new();
         let mut cur = 0;
         let mut offset = 0;
         for (i, layer) in desc.layers.iter().enumerate() {
@@ -211,6 +220,17 @@ impl Net {
                     stack.push(cur);
                     continue;
                 }
+                Layer::Output => {
+                    if cur == 0 || outputs.contains(&cur) {
+                        return Err(bad(i, "an output must be a new layer's tensor"));
+                    }
+                    outputs.push(cur);
+                    continue;
+                }
+                Layer::Pop => {
+                    cur = stack.pop().ok_or_else(|| bad(i, "pop with nothing saved"))?;
+                    continue;
+                }
                 Layer::Concat => {
                     let b = stack.pop().ok_or_else(|| bad(i, "concat with nothing saved"))?;
                     if tensors[b].level != t.level {
@@ -222,10 +242,21 @@ impl Net {
             }
             cur = tensors.len() - 1;
         }
-        if cur == 0 {
+        if cur == 0 || tensors.len() == 1 {
             return Err(HostError::Usage("a network needs at least one layer".into()));
         }
+        let last = tensors.len() - 1;
+        if cur != last {
+            return Err(HostError::Usage("a network must end on its last layer's tensor (not after a pop)".into()));
+        }
+        if !outputs.contains(&last) {
+            outputs.push(last);
+        }
         let mut consumers = vec![0; tensors.len()];
+        // The model's head reads every output.
+        for &o in &outputs {
+            consumers[o] += 1;
+        }
         for node in &nodes {
             match *node {
                 Node::Conv { x, .. } | Node::Pool { x, .. } | Node::Up { x, .. } => consumers[x] += 1,
@@ -235,12 +266,17 @@ impl Net {
                 }
             }
         }
-        Ok(Net { desc, tensors, nodes, convs, params: offset, consumers })
+        Ok(Net { desc, tensors, nodes, convs, params: offset, consumers, outputs })
     }
 
-    /// Output channels.
+    /// Output channels (of the final tensor).
     pub fn cout(&self) -> usize {
         self.tensors.last().map_or(0, |t| t.c)
+    }
+
+    /// The outputs' channels and halvings, in output order.
+    pub fn output_specs(&self) -> Vec<(usize, u32)> {
+        self.outputs.iter().map(|&t| (self.tensors[t].c, self.tensors[t].level)).collect()
     }
 
     /// The size of tensor `t` for an input of `w x h`.
@@ -489,6 +525,21 @@ impl Workspace {
         (out, g, &mut self.aux)
     }
 
+    /// Every output of `net` and its gradient (in output order), and the
+    /// model's buffers: for networks with several heads.
+    pub fn heads(&mut self, net: &Net) -> (Vec<&[f32]>, Vec<&mut [f32]>, &mut Vec<Vec<f32>>) {
+        let outs: Vec<&[f32]> = net.outputs.iter().map(|&t| &self.acts[t][..]).collect();
+        let mut grads: Vec<(usize, &mut [f32])> = self
+            .grads
+            .iter_mut()
+            .enumerate()
+            .filter(|(t, _)| net.outputs.contains(t))
+            .map(|(t, g)| (t, &mut g[..]))
+            .collect();
+        grads.sort_by_key(|(t, _)| net.outputs.iter().position(|o| o == t));
+        (outs, grads.into_iter().map(|(_, g)| g).collect(), &mut self.aux)
+    }
+
     /// The output's gradient, to fill before [`Workspace::backward`].
     pub fn output_grad_mut(&mut self) -> &mut [f32] {
         self.grads.last_mut().map_or(&mut [], |v| &mut v[..])
@@ -568,9 +619,10 @@ impl Workspace {
     /// gradients into its own buffers (read by [`Trainer::step`]).
     pub fn backward(&mut self, net: &Net, m: &Merged, isa: Isa) -> Result<()> {
         let (w, h) = (self.w, self.h);
-        let last = self.grads.len() - 1;
-        for g in &mut self.grads[..last] {
-            g.fill(0.0);
+        for (t, g) in self.grads.iter_mut().enumerate() {
+            if !net.outputs.contains(&t) {
+                g.fill(0.0);
+            }
         }
         for (gw, gb) in self.gw.iter_mut().zip(&mut self.gb) {
             gw.fill(0.0);
@@ -700,64 +752,127 @@ pub struct StepStats {
     pub grad_norm: f32,
 }
 
-/// Fills crop `i`'s input (and the model's per-crop buffers).
-pub type Fill<'a> = dyn Fn(usize, &mut Workspace) -> Result<()> + Sync + 'a;
-/// Computes crop `i`'s loss from the network's output and writes the
-/// output's gradient (of the batch mean).
-pub type Head<'a> = dyn Fn(usize, &mut Workspace) -> Result<f32> + Sync + 'a;
+/// What a model's head sees of the networks being trained: to run the
+/// other networks' passes itself (the first network's passes are the
+/// trainer's).
+pub struct Nets<'a> {
+    nets: &'a [Net],
+    merged: &'a [Merged],
+    params: &'a [f32],
+    offsets: &'a [usize],
+    /// The instruction set.
+    pub isa: Isa,
+}
 
-/// A network being trained: parameters, Adam, and one workspace per crop of
-/// the batch (allocated once).
+impl Nets<'_> {
+    /// Network `k`.
+    pub fn net(&self, k: usize) -> &Net {
+        &self.nets[k]
+    }
+    /// Network `k`'s forward pass on its workspace.
+    pub fn forward(&self, k: usize, ws: &mut Workspace) -> Result<()> {
+        ws.forward(&self.nets[k], &self.merged[k], &self.params[self.offsets[k]..self.offsets[k + 1]], self.isa)
+    }
+    /// Network `k`'s backward pass on its workspace.
+    pub fn backward(&self, k: usize, ws: &mut Workspace) -> Result<()> {
+        ws.backward(&self.nets[k], &self.merged[k], self.isa)
+    }
+}
+
+/// Fills crop `i`'s inputs (every network's workspace of the crop, and the
+/// model's per-crop buffers).
+pub type Fill<'a> = dyn Fn(usize, &mut [Workspace]) -> Result<()> + Sync + 'a;
+/// Computes crop `i`'s loss after the first network's forward pass: runs
+/// any other network's passes, and writes the first network's output
+/// gradients (of the batch mean).
+pub type Head<'a> = dyn Fn(usize, &Nets<'_>, &mut [Workspace]) -> Result<f32> + Sync + 'a;
+
+/// Networks being trained together: their parameters (one flat vector,
+/// network after network), Adam, and per crop of the batch one workspace
+/// per network (allocated once).
 #[derive(Debug)]
 pub struct Trainer {
-    /// The network.
-    pub net: Net,
-    /// Its parameters.
+    /// The networks.
+    pub nets: Vec<Net>,
+    /// Their parameters, one after the other.
     pub params: Vec<f32>,
+    /// Where each network's parameters start (and the total at the end).
+    pub offsets: Vec<usize>,
     /// Adam's state.
     pub adam: adam::Adam,
     /// Largest gradient norm (0: no clipping).
     pub clip: f32,
-    merged: Merged,
-    workspaces: Vec<Workspace>,
+    merged: Vec<Merged>,
+    workspaces: Vec<Vec<Workspace>>,
     grad: Vec<f32>,
-    gm: Vec<Vec<f32>>,
-    gb: Vec<Vec<f32>>,
+    gm: Vec<Vec<Vec<f32>>>,
+    gb: Vec<Vec<Vec<f32>>>,
 }
 
 impl Trainer {
-    /// A trainer for `batch` crops of `w x h`.
+    /// A trainer of one network for `batch` crops of `w x h`.
     pub fn new(net: Net, params: Vec<f32>, batch: usize, w: usize, h: usize, lr: f32, clip: f32) -> Trainer {
-        let mut merged = Merged::new(&net);
-        merged.update(&net, &params);
-        let workspaces = (0..batch).map(|_| Workspace::new(&net, w, h)).collect();
-        let n = net.params;
+        Trainer::with_nets(vec![(net, params, (w, h))], batch, lr, clip)
+    }
+
+    /// A trainer of several networks, each with its parameters and its
+    /// workspace size, for `batch` crops.
+    pub fn with_nets(nets: Vec<(Net, Vec<f32>, (usize, usize))>, batch: usize, lr: f32, clip: f32) -> Trainer {
+        let mut offsets = vec![0];
+        let mut params = Vec::new();
+        for (n, p, _) in &nets {
+            assert_eq!(n.params, p.len(), "parameters of their network");
+            params.extend_from_slice(p);
+            offsets.push(params.len());
+        }
+        let workspaces =
+            (0..batch).map(|_| nets.iter().map(|(n, _, (w, h))| Workspace::new(n, *w, *h)).collect()).collect();
+        let nets: Vec<Net> = nets.into_iter().map(|(n, _, _)| n).collect();
+        let mut merged: Vec<Merged> = nets.iter().map(Merged::new).collect();
+        for (k, n) in nets.iter().enumerate() {
+            merged[k].update(n, &params[offsets[k]..offsets[k + 1]]);
+        }
+        let total = params.len();
         Trainer {
-            gm: net.convs.iter().map(|c| vec![0.0; c.merged_len()]).collect(),
-            gb: net.convs.iter().map(|c| vec![0.0; c.spec.cout]).collect(),
-            adam: adam::Adam::new(n, lr),
+            gm: nets.iter().map(|n| n.convs.iter().map(|c| vec![0.0; c.merged_len()]).collect()).collect(),
+            gb: nets.iter().map(|n| n.convs.iter().map(|c| vec![0.0; c.spec.cout]).collect()).collect(),
+            adam: adam::Adam::new(total, lr),
             clip,
             merged,
             workspaces,
-            grad: vec![0.0; n],
+            grad: vec![0.0; total],
             params,
-            net,
+            offsets,
+            nets,
         }
     }
 
-    /// The merged weights the next forward pass uses.
-    pub fn merged(&self) -> &Merged {
-        &self.merged
+    /// The first network.
+    pub fn net(&self) -> &Net {
+        &self.nets[0]
     }
 
-    /// Sets the parameters (and the merged weights).
+    /// Network `k`'s parameters.
+    pub fn net_params(&self, k: usize) -> &[f32] {
+        &self.params[self.offsets[k]..self.offsets[k + 1]]
+    }
+
+    /// The merged weights the next forward pass of network `k` uses.
+    pub fn merged(&self, k: usize) -> &Merged {
+        &self.merged[k]
+    }
+
+    /// Sets the parameters (all networks', flat) and the merged weights.
     pub fn set_params(&mut self, params: Vec<f32>) {
+        assert_eq!(params.len(), self.params.len(), "every network's parameters");
         self.params = params;
-        self.merged.update(&self.net, &self.params);
+        for (k, n) in self.nets.iter().enumerate() {
+            self.merged[k].update(n, &self.params[self.offsets[k]..self.offsets[k + 1]]);
+        }
     }
 
-    /// The crops' workspaces.
-    pub fn workspaces(&mut self) -> &mut [Workspace] {
+    /// The crops' workspaces (per crop, one per network).
+    pub fn workspaces(&mut self) -> &mut [Vec<Workspace>] {
         &mut self.workspaces
     }
 
@@ -771,16 +886,16 @@ impl Trainer {
     /// With `update` false the gradient is computed and left in
     /// [`Trainer::grad`], the parameters unchanged.
     pub fn step(&mut self, pool: &Pool, isa: Isa, fill: &Fill<'_>, head: &Head<'_>, update: bool) -> Result<StepStats> {
-        let (net, merged, params) = (&self.net, &self.merged, &self.params[..]);
+        let nets = Nets { nets: &self.nets, merged: &self.merged, params: &self.params, offsets: &self.offsets, isa };
         let losses: Vec<Result<f32>> = pool.install(|| {
             self.workspaces
                 .par_iter_mut()
                 .enumerate()
-                .map(|(i, ws)| {
-                    fill(i, ws)?;
-                    ws.forward(net, merged, params, isa)?;
-                    let loss = head(i, ws)?;
-                    ws.backward(net, merged, isa)?;
+                .map(|(i, wss)| {
+                    fill(i, wss)?;
+                    nets.forward(0, &mut wss[0])?;
+                    let loss = head(i, &nets, wss)?;
+                    nets.backward(0, &mut wss[0])?;
                     Ok(loss)
                 })
                 .collect()
@@ -791,22 +906,28 @@ impl Trainer {
         }
         // Sum the crops' gradients in crop order (the result does not depend
         // on which thread ran which crop), then onto the branch parameters.
-        for (i, (gm, gb)) in self.gm.iter_mut().zip(&mut self.gb).enumerate() {
-            gm.fill(0.0);
-            gb.fill(0.0);
-            for ws in &self.workspaces {
-                add(gm, &ws.gw[i]);
-                add(gb, &ws.gb[i]);
-            }
-        }
         self.grad.fill(0.0);
-        for i in 0..self.net.convs.len() {
-            self.net.unmerge_grad(i, &self.gm[i], &self.gb[i], &mut self.grad);
+        for (k, net) in self.nets.iter().enumerate() {
+            let g = &mut self.grad[self.offsets[k]..self.offsets[k + 1]];
+            for (i, c) in net.convs.iter().enumerate() {
+                let (gm, gb) = (&mut self.gm[k][i], &mut self.gb[k][i]);
+                gm.fill(0.0);
+                gb.fill(0.0);
+                for wss in &self.workspaces {
+                    add(gm, &wss[k].gw[i]);
+                    add(gb, &wss[k].gb[i]);
+                }
+                let _ = c;
+                // `unmerge_grad` indexes by the network's own offsets.
+                net.unmerge_grad(i, gm, gb, g);
+            }
         }
         let grad_norm = adam::clip_norm(&mut self.grad, if update { self.clip } else { 0.0 });
         if update {
             self.adam.step(&mut self.params, &self.grad);
-            self.merged.update(&self.net, &self.params);
+            for (k, n) in self.nets.iter().enumerate() {
+                self.merged[k].update(n, &self.params[self.offsets[k]..self.offsets[k + 1]]);
+            }
         }
         Ok(StepStats { loss: (loss / self.workspaces.len().max(1) as f64) as f32, grad_norm })
     }

@@ -1,0 +1,137 @@
+//! The training engine: a network's gradient (every layer kind: RepVGG and
+//! plain convolutions, max and average pools, nearest and bilinear
+//! upsampling, skips, two heads) against central finite differences of its
+//! own loss, and training deterministic: the same seed gives the same
+//! weights bit for bit, whatever the thread count.
+
+use mcdenoise::nn::{Conv, Layer, Net, NetDesc, Nets, Trainer, Workspace};
+use mcdenoise::par::Pool;
+use mcdenoise_core::conv::Activation;
+use mcdenoise_tests::{isas_under_test, Img};
+
+fn unet() -> Net {
+    let c = |k, cout, act| Layer::Conv(Conv { k, cout, act, repvgg: false, bias: true });
+    let leaky = Activation::LeakyRelu(0.1);
+    Net::new(NetDesc {
+        cin: 3,
+        layers: vec![
+            Layer::Conv(Conv { k: 5, cout: 4, act: leaky, repvgg: true, bias: false }),
+            Layer::Save,
+            Layer::MaxPool,
+            c(3, 5, Activation::Relu),
+            Layer::Save,
+            Layer::AvgPool,
+            c(1, 5, leaky),
+            Layer::Upsample { bilinear: true },
+            Layer::Concat,
+            Layer::Save,
+            c(3, 2, Activation::Identity),
+            Layer::Output,
+            Layer::Pop,
+            Layer::Upsample { bilinear: false },
+            Layer::Concat,
+            c(3, 3, Activation::Identity),
+        ],
+    })
+    .unwrap()
+}
+
+/// The loss `sum_k sum g_k * out_k` over the heads, with fixed `g_k`.
+fn head_grads(net: &Net, w: usize, h: usize) -> Vec<Vec<f32>> {
+    net.output_specs()
+        .iter()
+        .enumerate()
+        .map(|(k, &(c, l))| {
+            let (mut ow, mut oh) = (w, h);
+            for _ in 0..l {
+                ow = ow.div_ceil(2);
+                oh = oh.div_ceil(2);
+            }
+            Img::random(c, ow, oh, -1.0, 1.0, 40 + k as u64).data
+        })
+        .collect()
+}
+
+#[test]
+fn network_gradient_matches_finite_differences() {
+    let net = unet();
+    let (w, h) = (13, 10);
+    let params = net.init(3);
+    let x = Img::random(3, w, h, -1.0, 1.0, 5).data;
+    let g = head_grads(&net, w, h);
+    let pool = Pool::new(2).unwrap();
+    for isa in isas_under_test() {
+        let mut tr = Trainer::new(net.clone(), params.clone(), 1, w, h, 1e-3, 0.0);
+        let fill = |_: usize, wss: &mut [Workspace]| {
+            wss[0].input_mut().copy_from_slice(&x);
+            Ok(())
+        };
+        let head = |_: usize, nets: &Nets<'_>, wss: &mut [Workspace]| {
+            let (outs, grads, _) = wss[0].heads(nets.net(0));
+            let mut l = 0.0f64;
+            for ((o, gr), gk) in outs.iter().zip(grads).zip(&g) {
+                l += o.iter().zip(gk).map(|(a, b)| (a * b) as f64).sum::<f64>();
+                gr.copy_from_slice(gk);
+            }
+            Ok(l as f32)
+        };
+        tr.step(&pool, isa, &fill, &head, false).unwrap();
+        let grad = tr.grad().to_vec();
+        // The loss in f64 from the f32 forward pass, for perturbed parameters.
+        let loss_at = |p: &[f32]| -> f64 {
+            let mut t2 = Trainer::new(net.clone(), p.to_vec(), 1, w, h, 1e-3, 0.0);
+            t2.step(&pool, isa, &fill, &head, false).unwrap().loss as f64
+        };
+        let scale = grad.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
+        let mut checked = 0;
+        for i in (0..params.len()).step_by(7) {
+            // Small enough not to cross a ReLU or max-pool kink for any sampled parameter.
+            let hh = 2e-3f32;
+            let (mut a, mut b) = (params.clone(), params.clone());
+            a[i] += hh;
+            b[i] -= hh;
+            let fdv = (loss_at(&a) - loss_at(&b)) / (2.0 * hh as f64);
+            assert!(
+                (fdv - grad[i] as f64).abs() <= 2e-3 * scale + 2e-2 * fdv.abs(),
+                "{isa:?}: parameter {i}: backward {} vs finite differences {fdv} (scale {scale})",
+                grad[i]
+            );
+            checked += 1;
+        }
+        assert!(checked > 10);
+    }
+}
+
+#[test]
+fn training_is_deterministic_and_thread_count_independent() {
+    let net = unet();
+    let (w, h) = (16, 12);
+    let run = |threads: usize| {
+        let pool = Pool::new(threads).unwrap();
+        let mut tr = Trainer::new(net.clone(), net.init(11), 4, w, h, 1e-2, 1.0);
+        let fill = |i: usize, wss: &mut [Workspace]| {
+            wss[0].input_mut().copy_from_slice(&Img::random(3, w, h, 0.0, 1.0, i as u64).data);
+            Ok(())
+        };
+        let head = |_: usize, nets: &Nets<'_>, wss: &mut [Workspace]| {
+            let (outs, grads, _) = wss[0].heads(nets.net(0));
+            let mut l = 0.0f32;
+            for (o, gr) in outs.iter().zip(grads) {
+                for (gv, &ov) in gr.iter_mut().zip(o.iter()) {
+                    *gv = 2.0 * (ov - 0.5) / o.len() as f32 / 4.0;
+                    l += (ov - 0.5) * (ov - 0.5) / o.len() as f32;
+                }
+            }
+            Ok(l)
+        };
+        for _ in 0..5 {
+            tr.step(&pool, mcdenoise_core::Isa::detect(), &fill, &head, true).unwrap();
+        }
+        tr.params.clone()
+    };
+    let a = run(1);
+    assert_eq!(a, run(1), "the same run twice");
+    assert_eq!(a, run(2), "2 threads");
+    assert_eq!(a, run(3), "3 threads");
+    assert_ne!(a, unet().init(11), "the parameters moved");
+}
