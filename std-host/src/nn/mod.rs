@@ -376,6 +376,10 @@ impl Net {
     }
 }
 
+/// The outputs of a network's heads, their gradients to fill, and the
+/// model's per-crop buffers ([`Workspace::heads`]).
+pub type Heads<'a> = (Vec<&'a [f32]>, Vec<&'a mut [f32]>, &'a mut Vec<Vec<f32>>);
+
 /// A small deterministic generator (splitmix64), for initialisation and
 /// sampling: the same seed gives the same numbers on every machine.
 #[derive(Clone, Debug)]
@@ -527,7 +531,7 @@ impl Workspace {
 
     /// Every output of `net` and its gradient (in output order), and the
     /// model's buffers: for networks with several heads.
-    pub fn heads(&mut self, net: &Net) -> (Vec<&[f32]>, Vec<&mut [f32]>, &mut Vec<Vec<f32>>) {
+    pub fn heads(&mut self, net: &Net) -> Heads<'_> {
         let outs: Vec<&[f32]> = net.outputs.iter().map(|&t| &self.acts[t][..]).collect();
         let mut grads: Vec<(usize, &mut [f32])> = self
             .grads
