@@ -20,7 +20,8 @@ usage:
                                  write outputs and PNGs under ./mcdenoise-out/
   mcdenoise denoise --method M [options] INPUT... -o OUTDIR
                                  INPUT: frame files in order, or a directory (its .exr files by name)
-      --method M                 none | ta | atrous | sure-atrous | wskp
+      --method M                 none | ta | atrous | sure-atrous | wskp | afn
+      --no-refine                afn: without the refinement network
       --precision P              f32 (default) | f16 | f16-arith | fixed
       --threads N                worker threads (default: all cores)
       --isa I                    scalar | avx2 | avx512 (default: the best this CPU has)
@@ -34,7 +35,7 @@ usage:
                                  time and error (against the f64 oracle) of every operator in every
                                  precision and instruction set; CSV and an SVG plot (default under
                                  ./mcdenoise-out/); 1 thread and 1280x720 unless told otherwise
-  mcdenoise train --method wskp --data DIR (--steps N | --minutes M) -o WEIGHTS [options]
+  mcdenoise train --method wskp|afn --data DIR (--steps N | --minutes M) -o WEIGHTS [options]
       --val DIR                  validation sequences (mean PSNR printed every --val-every steps)
       --layers N                 3 or 6 (default 6)        --batch N      crops per step (default 8)
       --crop N                   crop side (default 128)   --lr F         Adam learning rate (default 1e-3)
@@ -177,6 +178,7 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
                     Some("--half") => half = true,
                     Some("--png") => png = true,
                     Some("--timings") => timings = true,
+                    Some("--no-refine") => settings.refine = false,
                     Some(f @ ("--precision" | "--threads" | "--isa" | "--phi-color" | "--layers" | "--weights")) => {
                         let f = f.to_string();
                         let v = text(&f, it.next())?;
@@ -186,8 +188,8 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
                     _ => inputs.push(PathBuf::from(a)),
                 }
             }
-            let method =
-                method.ok_or_else(|| usage("denoise: --method is required (none, ta, atrous, sure-atrous, wskp)"))?;
+            let method = method
+                .ok_or_else(|| usage("denoise: --method is required (none, ta, atrous, sure-atrous, wskp, afn)"))?;
             let outdir = outdir.ok_or_else(|| usage("denoise: -o OUTDIR is required"))?;
             if inputs.is_empty() {
                 return Err(usage("denoise: no INPUT given (frame files or a directory)"));
@@ -251,8 +253,8 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
                 };
                 match f.as_str() {
                     "--method" => {
-                        if v != "wskp" {
-                            return Err(usage(format!("train --method: expected wskp, got '{v}'")));
+                        if v != "wskp" && v != "afn" {
+                            return Err(usage(format!("train --method: expected wskp or afn, got '{v}'")));
                         }
                         a.method = v;
                     }

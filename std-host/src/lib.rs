@@ -4,6 +4,7 @@
 //! bands of rows, frame I/O in the input contract, pipelines, metrics and the
 //! `mcdenoise` CLI.
 
+pub mod afn;
 pub mod aligned;
 pub mod error;
 pub mod frame;

@@ -31,7 +31,7 @@ use crate::nn::weights::{self, File, Form, Tensor};
 use crate::nn::{Net, Nets, Rng, Trainer, Workspace};
 use crate::precision::PrecisionKind;
 use crate::run::list_inputs;
-use crate::wskp;
+use crate::{afn, wskp};
 
 /// Options of `mcdenoise train`.
 #[derive(Clone, Debug, PartialEq)]
@@ -171,27 +171,6 @@ struct Sample {
     data: Vec<f32>,
 }
 
-/// WSKP's samples: `[x (10), c (3), a + EPS (3), ref (3)]`.
-fn wskp_samples(seqs: &[Sequence], threads: usize, isa: Isa) -> Result<Vec<Sample>> {
-    let pool = crate::par::Pool::new(threads).map_err(HostError::Usage)?;
-    let mut out = Vec::new();
-    for s in seqs {
-        let ta = accumulate(s, threads, isa)?;
-        for ((f, t), r) in s.frames.iter().zip(&ta).zip(&s.refs) {
-            wskp::check_inputs(f)?;
-            let n = f.width * f.height;
-            let mut data = vec![0.0f32; 19 * n];
-            let (x, rest) = data.split_at_mut(10 * n);
-            let (c, rest) = rest.split_at_mut(3 * n);
-            let (alb, rf) = rest.split_at_mut(3 * n);
-            wskp::inputs(&pool, isa, f, t, x, c, alb)?;
-            rf.copy_from_slice(r);
-            out.push(Sample { w: f.width, h: f.height, data });
-        }
-    }
-    Ok(out)
-}
-
 /// Where a crop comes from: frame, corner, and which of the 8 symmetries.
 #[derive(Clone, Copy, Debug)]
 struct CropAt {
@@ -270,41 +249,156 @@ fn checkpoint_path(out: &Path) -> PathBuf {
     PathBuf::from(p)
 }
 
-fn save_checkpoint(path: &Path, tr: &Trainer, step: u64, rng: &Rng, meta: &[(&str, String)]) -> Result<()> {
-    let owned = weights::param_tensors(tr.net(), &tr.params, Form::Branches);
-    let mut tensors: Vec<Tensor<'_>> =
-        owned.iter().map(|(n, s, d)| Tensor { name: n.clone(), shape: s.clone(), data: d }).collect();
-    tensors.push(Tensor { name: "adam.m".into(), shape: vec![tr.adam.m.len()], data: &tr.adam.m });
-    tensors.push(Tensor { name: "adam.v".into(), shape: vec![tr.adam.v.len()], data: &tr.adam.v });
-    let mut all = vec![
-        ("format", "mcdenoise-wskp".to_string()),
-        ("version", "1".to_string()),
-        ("form", "branches".to_string()),
-        ("step", step.to_string()),
-        ("adam_t", tr.adam.t.to_string()),
-        ("rng", rng.state().to_string()),
-    ];
-    all.extend(meta.iter().cloned());
-    weights::save(path, &tensors, &all)
+/// What is being trained.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Model {
+    /// WSKP with this many layers.
+    Wskp(usize),
+    /// AFN, the kernel predictor and the refinement together.
+    Afn,
+}
+
+impl Model {
+    fn name(self) -> &'static str {
+        match self {
+            Model::Wskp(_) => "wskp",
+            Model::Afn => "afn",
+        }
+    }
+    fn nets(self) -> Result<Vec<Net>> {
+        Ok(match self {
+            Model::Wskp(l) => vec![wskp::net(l)?],
+            Model::Afn => vec![afn::kernel_net()?, afn::refine_net()?],
+        })
+    }
+    /// Metadata every file of this model carries.
+    fn meta(self) -> Vec<(&'static str, String)> {
+        match self {
+            Model::Wskp(l) => vec![("layers", l.to_string())],
+            Model::Afn => vec![],
+        }
+    }
+    /// Planes of a sample: the network input, then the model's own.
+    fn planes(self) -> (usize, usize) {
+        match self {
+            Model::Wskp(_) => (wskp::CIN, 9),
+            Model::Afn => (afn::CIN, afn::buf::DATA_PLANES),
+        }
+    }
+    /// The sequences' samples.
+    fn samples(self, seqs: &[Sequence], threads: usize, isa: Isa) -> Result<Vec<Sample>> {
+        let pool = crate::par::Pool::new(threads).map_err(HostError::Usage)?;
+        let (cin, own) = self.planes();
+        let mut out = Vec::new();
+        for s in seqs {
+            let ta = accumulate(s, threads, isa)?;
+            for ((f, t), r) in s.frames.iter().zip(&ta).zip(&s.refs) {
+                let n = f.width * f.height;
+                let mut data = vec![0.0f32; (cin + own) * n];
+                let (x, rest) = data.split_at_mut(cin * n);
+                match self {
+                    Model::Wskp(_) => {
+                        wskp::check_inputs(f)?;
+                        let (c, rest) = rest.split_at_mut(3 * n);
+                        let (alb, rf) = rest.split_at_mut(3 * n);
+                        wskp::inputs(&pool, isa, f, t, x, c, alb)?;
+                        rf.copy_from_slice(r);
+                    }
+                    Model::Afn => {
+                        afn::check_inputs(f)?;
+                        let (c1, rest) = rest.split_at_mut(3 * n);
+                        let (ct, rest) = rest.split_at_mut(3 * n);
+                        let (alb, rest) = rest.split_at_mut(3 * n);
+                        let (rf, feats) = rest.split_at_mut(3 * n);
+                        afn::inputs(&pool, isa, f, t, x, c1, ct, alb)?;
+                        rf.copy_from_slice(r);
+                        feats.copy_from_slice(&x[6 * n..]);
+                    }
+                }
+                out.push(Sample { w: f.width, h: f.height, data });
+            }
+        }
+        Ok(out)
+    }
+    /// The denoiser for validation, with the flat parameters of every network.
+    fn denoiser(self, f: &Frame, nets: &[Net], params: &[f32]) -> Result<Box<dyn Denoiser>> {
+        Ok(match self {
+            Model::Wskp(l) => Box::new(wskp::Wskp::<F32>::from_params(f, nets[0].clone(), params.to_vec(), l)?),
+            Model::Afn => {
+                let k = nets[0].params;
+                Box::new(afn::Afn::<F32>::from_params(f, (params[..k].to_vec(), params[k..].to_vec()), true)?)
+            }
+        })
+    }
+    /// Saves the weights (and, with `adam`, a checkpoint).
+    fn save(self, path: &Path, tr: &Trainer, extra: &[(&str, String)], adam: Option<(u64, &Rng)>) -> Result<()> {
+        let mut owned = Vec::new();
+        for (k, net) in tr.nets.iter().enumerate() {
+            let prefix = if k == 0 { String::new() } else { "refine.".to_string() };
+            owned.extend(
+                weights::param_tensors(net, tr.net_params(k), Form::Branches)
+                    .into_iter()
+                    .map(|(n, s, d)| (format!("{prefix}{n}"), s, d)),
+            );
+        }
+        let mut tensors: Vec<Tensor<'_>> =
+            owned.iter().map(|(n, s, d)| Tensor { name: n.clone(), shape: s.clone(), data: d }).collect();
+        let mut meta = vec![
+            ("format", format!("mcdenoise-{}", self.name())),
+            ("version", "1".to_string()),
+            ("form", "branches".to_string()),
+        ];
+        meta.extend(self.meta());
+        meta.extend(extra.iter().cloned());
+        if let Some((step, rng)) = adam {
+            tensors.push(Tensor { name: "adam.m".into(), shape: vec![tr.adam.m.len()], data: &tr.adam.m });
+            tensors.push(Tensor { name: "adam.v".into(), shape: vec![tr.adam.v.len()], data: &tr.adam.v });
+            meta.extend([
+                ("step", step.to_string()),
+                ("adam_t", tr.adam.t.to_string()),
+                ("rng", rng.state().to_string()),
+            ]);
+        }
+        weights::save(path, &tensors, &meta)
+    }
+    /// Every network's parameters from a file of this model (flat).
+    fn load(self, f: &File, nets: &[Net]) -> Result<Vec<f32>> {
+        for (k, v) in self.meta() {
+            f.expect_meta(k, &v)?;
+        }
+        Ok(match self {
+            Model::Wskp(_) => f.params(&nets[0], "wskp", &["adam.m", "adam.v"])?,
+            Model::Afn => {
+                let (kp, rp) = afn::split_params(f, &nets[0], &nets[1])?;
+                [kp, rp].concat()
+            }
+        })
+    }
 }
 
 /// Runs `mcdenoise train`.
 pub fn run(a: &TrainArgs) -> Result<()> {
-    if a.method != "wskp" {
-        return Err(HostError::Usage(format!("train --method: only wskp trains here so far, got '{}'", a.method)));
-    }
+    let model = match a.method.as_str() {
+        "wskp" => Model::Wskp(a.layers),
+        "afn" => Model::Afn,
+        m => return Err(HostError::Usage(format!("train --method: expected wskp or afn, got '{m}'"))),
+    };
     if a.steps.is_none() && a.minutes.is_none() {
         return Err(HostError::Usage("train: give --steps N or --minutes M".into()));
     }
     let t0 = Instant::now();
-    let net = wskp::net(a.layers)?;
+    let nets = model.nets()?;
     let dirs = sequence_dirs(&a.data)?;
-    eprintln!("train wskp: {} layers, {} parameters; loading {}", a.layers, net.params, a.data.display());
+    let nparams: usize = nets.iter().map(|n| n.params).sum();
+    eprintln!("train {}: {} parameters; loading {}", model.name(), nparams, a.data.display());
     let seqs: Vec<Sequence> = dirs.iter().map(|d| load_sequence(d)).collect::<Result<_>>()?;
-    let samples = wskp_samples(&seqs, a.threads, a.isa)?;
+    let samples = model.samples(&seqs, a.threads, a.isa)?;
     let s = a.crop;
     if let Some(small) = samples.iter().find(|x| x.w < s || x.h < s) {
         return Err(HostError::Usage(format!("--crop {s}: a frame is only {}x{}", small.w, small.h)));
+    }
+    if model == Model::Afn && !s.is_multiple_of(4) {
+        return Err(HostError::Usage(format!("--crop {s}: afn needs a multiple of 4 (two 2x pools)")));
     }
     let val: Vec<Sequence> = match &a.val {
         Some(v) => sequence_dirs(v)?.iter().map(|d| load_sequence(d)).collect::<Result<_>>()?,
@@ -318,13 +412,13 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         val.iter().map(|v| v.frames.len()).sum::<usize>(),
         input_psnr(&val)
     );
-    let layers_meta = ("layers", a.layers.to_string());
-    let (mut params, mut step, mut rng) = (net.init(a.seed), 0u64, Rng::new(a.seed.wrapping_add(1)));
+    let mut params: Vec<f32> =
+        nets.iter().enumerate().flat_map(|(k, n)| n.init(a.seed.wrapping_add(k as u64 * 1000))).collect();
+    let (mut step, mut rng) = (0u64, Rng::new(a.seed.wrapping_add(1)));
     let mut adam_state = None;
     if let Some(r) = &a.resume {
         let f = File::read(r)?;
-        f.expect_meta("layers", &a.layers.to_string())?;
-        params = f.params(&net, "wskp", &["adam.m", "adam.v"])?;
+        params = model.load(&f, &nets)?;
         let num = |k: &str| {
             f.meta(k)
                 .and_then(|v| v.parse::<u64>().ok())
@@ -332,15 +426,27 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         };
         step = num("step")?;
         rng = Rng::from_state(num("rng")?);
-        adam_state = Some((f.tensor("adam.m", &[net.params])?, f.tensor("adam.v", &[net.params])?, num("adam_t")?));
+        adam_state = Some((f.tensor("adam.m", &[nparams])?, f.tensor("adam.v", &[nparams])?, num("adam_t")?));
         eprintln!("resumed from {} at step {step}", r.display());
     }
-    let mut tr = Trainer::new(net, params, a.batch, s, s, a.lr, a.clip);
+    let mut at = 0;
+    let spec: Vec<(Net, Vec<f32>, (usize, usize))> = nets
+        .iter()
+        .map(|n| {
+            let p = params[at..at + n.params].to_vec();
+            at += n.params;
+            (n.clone(), p, (s, s))
+        })
+        .collect();
+    let mut tr = Trainer::with_nets(spec, a.batch, a.lr, a.clip);
     if let Some((m, v, t)) = adam_state {
         (tr.adam.m, tr.adam.v, tr.adam.t) = (m, v, t);
     }
     for wss in tr.workspaces() {
-        wskp::crop_buffers(&mut wss[0]);
+        match model {
+            Model::Wskp(_) => wskp::crop_buffers(&mut wss[0]),
+            Model::Afn => afn::crop_buffers(wss),
+        }
     }
     let pool = crate::par::Pool::new(a.threads).map_err(HostError::Usage)?;
     let ckpt = checkpoint_path(&a.out);
@@ -358,14 +464,10 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     let mut ema: Option<f32> = None;
     let (isa, loss, scale) = (a.isa, a.loss, 1.0 / a.batch as f32);
     let validate_now = |tr: &Trainer| -> Result<f64> {
-        let p = tr.params.clone();
-        let layers = a.layers;
-        let net2 = wskp::net(layers)?;
-        let make = move |f: &Frame| -> Result<Box<dyn Denoiser>> {
-            Ok(Box::new(wskp::Wskp::<F32>::from_params(f, net2.clone(), p.clone(), layers)?))
-        };
+        let make = |f: &Frame| model.denoiser(f, &tr.nets, &tr.params);
         validate(&val, &make, a.threads, a.isa)
     };
+    let (cin, own) = model.planes();
     loop {
         let done_steps = a.steps.is_some_and(|n| step >= n);
         let done_time = deadline.is_some_and(|d| start.elapsed() >= d);
@@ -377,11 +479,14 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             let ws = &mut wss[0];
             let at = picks[i];
             let sm = &samples[at.frame];
-            crop(sm, at, s, 0, 10, ws.input_mut());
-            crop(sm, at, s, 10, 19, &mut ws.aux[0]);
+            crop(sm, at, s, 0, cin, ws.input_mut());
+            crop(sm, at, s, cin, cin + own, &mut ws.aux[0]);
             Ok(())
         };
-        let head = |_: usize, _: &Nets<'_>, wss: &mut [Workspace]| wskp::head(&mut wss[0], loss, scale, isa);
+        let head = |_: usize, nets: &Nets<'_>, wss: &mut [Workspace]| match model {
+            Model::Wskp(_) => wskp::head(&mut wss[0], loss, scale, isa),
+            Model::Afn => afn::head(nets, wss, loss, scale, true),
+        };
         let st = tr.step(&pool, a.isa, &fill, &head, true)?;
         step += 1;
         ema = Some(ema.map_or(st.loss, |e| 0.98 * e + 0.02 * st.loss));
@@ -411,22 +516,15 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             None => {}
         }
         if last_ckpt.elapsed().as_secs_f64() >= a.checkpoint_minutes * 60.0 {
-            save_checkpoint(&ckpt, &tr, step, &rng, std::slice::from_ref(&layers_meta))?;
+            model.save(&ckpt, &tr, &[], Some((step, &rng)))?;
             last_ckpt = Instant::now();
         }
     }
     if let Some(b) = &bar {
         b.finish_and_clear();
     }
-    save_checkpoint(&ckpt, &tr, step, &rng, std::slice::from_ref(&layers_meta))?;
-    weights::save_params(
-        &a.out,
-        tr.net(),
-        &tr.params,
-        Form::Branches,
-        "wskp",
-        &[layers_meta.clone(), ("steps", step.to_string())],
-    )?;
+    model.save(&ckpt, &tr, &[], Some((step, &rng)))?;
+    model.save(&a.out, &tr, &[("steps", step.to_string())], None)?;
     let secs = start.elapsed().as_secs_f64();
     let vp = if val.is_empty() { None } else { Some(validate_now(&tr)?) };
     eprintln!(

@@ -21,3 +21,19 @@ pub fn wskp(path: Option<&Path>, layers: usize) -> Result<File> {
         ))),
     }
 }
+
+/// AFN's weights (both networks in one file).
+pub fn afn(path: Option<&Path>) -> Result<File> {
+    if let Some(p) = path {
+        return File::read(p);
+    }
+    // Filled in when trained weights are bundled.
+    let bundled: Option<&'static [u8]> = None;
+    match bundled {
+        Some(b) => File::from_bytes(b.to_vec(), Path::new("<bundled afn>")),
+        None => Err(HostError::Usage(
+            "afn: no bundled weights in this build; pass --weights FILE (made by 'mcdenoise train --method afn')"
+                .into(),
+        )),
+    }
+}

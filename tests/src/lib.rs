@@ -161,6 +161,23 @@ pub fn settings_for(
         mcdenoise::methods::MethodKind::Wskp => {
             mcdenoise::methods::Settings { weights: Some(wskp_test_weights(base.layers)), ..base }
         }
+        mcdenoise::methods::MethodKind::Afn => {
+            mcdenoise::methods::Settings { weights: Some(afn_test_weights()), ..base }
+        }
         _ => base,
     }
+}
+
+/// An AFN weights file with initial (untrained, seeded) parameters, written
+/// once per test process: for tests of the method's plumbing.
+pub fn afn_test_weights() -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("mcdenoise-test-{}", std::process::id()));
+    let path = dir.join("afn.safetensors");
+    if !path.exists() {
+        let (k, r) = (mcdenoise::afn::kernel_net().unwrap(), mcdenoise::afn::refine_net().unwrap());
+        // A small residual: the refinement starts near the identity.
+        let rp: Vec<f32> = r.init(8).iter().map(|v| v * 0.05).collect();
+        mcdenoise::afn::save(&path, &k, &k.init(7), &r, &rp, &[]).unwrap();
+    }
+    path
 }

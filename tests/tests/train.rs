@@ -135,3 +135,65 @@ fn training_is_deterministic_and_thread_count_independent() {
     assert_eq!(a, run(3), "3 threads");
     assert_ne!(a, unet().init(11), "the parameters moved");
 }
+
+/// AFN's whole training head (kernels' softmax, the two applies, the pool,
+/// the compositor, the sigmoid, the refinement in log1p space, the
+/// remodulation and the loss) with both networks: the gradient against
+/// finite differences of the loss.
+#[test]
+fn afn_gradient_matches_finite_differences() {
+    use mcdenoise::afn;
+    use mcdenoise::nn::loss::Loss;
+    let (kn, rn) = (afn::kernel_net().unwrap(), afn::refine_net().unwrap());
+    let s = 12;
+    let n = s * s;
+    let x = Img::random(afn::CIN, s, s, 0.0, 1.0, 1).data;
+    let mut data = Img::random(afn::buf::DATA_PLANES, s, s, 0.05, 2.0, 2).data;
+    data[9 * n..12 * n].iter_mut().for_each(|v| *v *= 0.8); // the reference
+    let pool = Pool::new(2).unwrap();
+    let kp: Vec<f32> = kn.init(3);
+    let rp: Vec<f32> = rn.init(4).iter().map(|v| v * 0.3).collect();
+    let params = [kp.clone(), rp.clone()].concat();
+    let make = |p: &[f32]| {
+        let mut tr = Trainer::with_nets(
+            vec![(kn.clone(), p[..kn.params].to_vec(), (s, s)), (rn.clone(), p[kn.params..].to_vec(), (s, s))],
+            1,
+            1e-3,
+            0.0,
+        );
+        for wss in tr.workspaces() {
+            afn::crop_buffers(wss);
+        }
+        tr
+    };
+    let fill = |_: usize, wss: &mut [Workspace]| {
+        wss[0].input_mut().copy_from_slice(&x);
+        wss[0].aux[afn::buf::DATA].copy_from_slice(&data);
+        Ok(())
+    };
+    let head = |_: usize, nets: &Nets<'_>, wss: &mut [Workspace]| afn::head(nets, wss, Loss::RelMse, 1.0, true);
+    for isa in isas_under_test() {
+        let mut tr = make(&params);
+        tr.step(&pool, isa, &fill, &head, false).unwrap();
+        let grad = tr.grad().to_vec();
+        let loss_at = |p: &[f32]| make(p).step(&pool, isa, &fill, &head, false).unwrap().loss as f64;
+        let scale = grad.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
+        let mut checked = 0;
+        // Every 97th parameter of the kernel predictor and every 13th of the refinement.
+        let picks = (0..kn.params).step_by(97).chain((kn.params..params.len()).step_by(13));
+        for i in picks {
+            let hh = 2e-3f32;
+            let (mut a, mut b) = (params.clone(), params.clone());
+            a[i] += hh;
+            b[i] -= hh;
+            let fdv = (loss_at(&a) - loss_at(&b)) / (2.0 * hh as f64);
+            assert!(
+                (fdv - grad[i] as f64).abs() <= 3e-3 * scale + 3e-2 * fdv.abs(),
+                "{isa:?}: parameter {i}: backward {} vs finite differences {fdv} (scale {scale})",
+                grad[i]
+            );
+            checked += 1;
+        }
+        assert!(checked > 20);
+    }
+}

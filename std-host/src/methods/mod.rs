@@ -34,12 +34,20 @@ pub enum MethodKind {
     SureAtrous,
     /// Weight-sharing kernel prediction: TA, the ImportanceNet, the fused filter.
     Wskp,
+    /// The adaptive fusion network: 1 spp and TA filtered at two scales, fused, refined.
+    Afn,
 }
 
 impl MethodKind {
     /// Every method.
-    pub const ALL: [MethodKind; 5] =
-        [MethodKind::None, MethodKind::Ta, MethodKind::Atrous, MethodKind::SureAtrous, MethodKind::Wskp];
+    pub const ALL: [MethodKind; 6] = [
+        MethodKind::None,
+        MethodKind::Ta,
+        MethodKind::Atrous,
+        MethodKind::SureAtrous,
+        MethodKind::Wskp,
+        MethodKind::Afn,
+    ];
 
     /// The command-line name.
     pub fn name(self) -> &'static str {
@@ -48,6 +56,7 @@ impl MethodKind {
             MethodKind::Ta => "ta",
             MethodKind::Atrous => "atrous",
             MethodKind::Wskp => "wskp",
+            MethodKind::Afn => "afn",
             MethodKind::SureAtrous => "sure-atrous",
         }
     }
@@ -129,6 +138,8 @@ pub struct Settings {
     pub layers: usize,
     /// Learned methods: a weights file instead of the bundled weights.
     pub weights: Option<std::path::PathBuf>,
+    /// AFN: with the refinement network.
+    pub refine: bool,
 }
 
 impl Default for Settings {
@@ -140,6 +151,7 @@ impl Default for Settings {
             phi_color: None,
             layers: 6,
             weights: None,
+            refine: true,
         }
     }
 }
@@ -183,6 +195,10 @@ fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Fr
         MethodKind::Wskp => {
             let file = crate::weights::wskp(settings.weights.as_deref(), settings.layers)?;
             Box::new(crate::wskp::Wskp::<P>::new(first, &file, settings.layers)?)
+        }
+        MethodKind::Afn => {
+            let file = crate::weights::afn(settings.weights.as_deref())?;
+            Box::new(crate::afn::Afn::<P>::new(first, &file, settings.refine)?)
         }
     })
 }

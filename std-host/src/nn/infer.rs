@@ -101,7 +101,10 @@ impl<P: HostPrecision> Inference<P> {
                 }
             }
         }
-        last_use[nt - 1] = usize::MAX;
+        // The outputs stay until the next run.
+        for &o in &net.outputs {
+            last_use[o] = usize::MAX;
+        }
         Ok(Inference {
             net: net.clone(),
             weights,
@@ -110,6 +113,11 @@ impl<P: HostPrecision> Inference<P> {
             free: Vec::new(),
             last_use,
         })
+    }
+
+    /// Output `k` of the last run (in the network's output order).
+    pub fn output(&self, k: usize) -> &Planes<P::Store> {
+        self.bufs[self.net.outputs[k]].as_ref().expect("outputs stay live after a run")
     }
 
     /// The format the input must be stored in (fixed point).

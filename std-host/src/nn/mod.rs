@@ -467,6 +467,9 @@ pub struct Workspace {
     /// A model's own per-crop buffers (targets, filter inputs, ...),
     /// allocated by the model on first use and kept.
     pub aux: Vec<Vec<f32>>,
+    /// Whether the backward pass also computes the input's gradient
+    /// ([`Workspace::input_grad`]), for a network fed by another one.
+    pub want_input_grad: bool,
 }
 
 impl Workspace {
@@ -503,7 +506,14 @@ impl Workspace {
             gw: net.convs.iter().map(|c| vec![0.0; c.merged_len()]).collect(),
             gb: net.convs.iter().map(|c| vec![0.0; c.spec.cout]).collect(),
             aux: Vec::new(),
+            want_input_grad: false,
         }
+    }
+
+    /// The input's gradient after [`Workspace::backward`] (with
+    /// [`Workspace::want_input_grad`]).
+    pub fn input_grad(&self) -> &[f32] {
+        &self.grads[0]
     }
 
     /// The crop size.
@@ -658,7 +668,7 @@ impl Workspace {
                         &mut self.gw[i],
                         gb,
                     )?;
-                    if x != 0 {
+                    if x != 0 || self.want_input_grad {
                         // The core writes the input gradient: straight into the
                         // tensor's gradient when this conv is its only consumer,
                         // else into a buffer that is then added (a saved tensor

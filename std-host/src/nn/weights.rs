@@ -195,6 +195,32 @@ impl File {
         self.st().names().into_iter().map(String::from).collect()
     }
 
+    /// `net`'s parameters from the tensors named with `prefix` (a second
+    /// network in the same file, e.g. `refine.layers.0.weight`), branches form.
+    pub fn params_prefixed(&self, net: &Net, prefix: &str) -> Result<Vec<f32>> {
+        let mut p = vec![0.0f32; net.params];
+        for (i, c) in net.convs.iter().enumerate() {
+            let (cin, cout) = (c.cin, c.spec.cout);
+            let mut at = c.offset;
+            if c.spec.repvgg {
+                for &b in c.branches() {
+                    let v = self.tensor(&format!("{prefix}layers.{i}.conv{b}.weight"), &[cout, cin, b, b])?;
+                    p[at..at + v.len()].copy_from_slice(&v);
+                    at += v.len();
+                }
+            } else {
+                let k = c.k();
+                let v = self.tensor(&format!("{prefix}layers.{i}.weight"), &[cout, cin, k, k])?;
+                p[at..at + v.len()].copy_from_slice(&v);
+            }
+            if c.spec.bias {
+                let v = self.tensor(&format!("{prefix}layers.{i}.bias"), &[cout])?;
+                p[c.offset + c.count - cout..c.offset + c.count].copy_from_slice(&v);
+            }
+        }
+        Ok(p)
+    }
+
     /// `net`'s parameters from the file (either form), after checking the
     /// format and that no tensor is left unused besides `allowed_extra`.
     pub fn params(&self, net: &Net, model: &str, allowed_extra: &[&str]) -> Result<Vec<f32>> {

@@ -1,0 +1,575 @@
+//! The adaptive fusion network (AFN; the paper in shared/seeds/000): one
+//! light autoencoder predicts two 7x7 kernel maps from the 1-spp image, the
+//! temporally accumulated (TA) image and the auxiliary buffers; `K_1spp`
+//! filters the 2x average-pooled 1-spp image, `K_TA` the TA image at full
+//! scale; the scale compositor fuses them,
+//! `i = d_TA - a U(D(d_TA)) + a U(d_1spp)`, with a predicted weight `a`; a
+//! small residual CNN refines, `o = i + R(i, f)`.
+//!
+//! No public code exists; the choices here (light by design: about 15 k
+//! multiply-adds per pixel for the kernel predictor, 2.7 k for the
+//! refinement):
+//! - everything is filtered in demodulated irradiance `c = x / (albedo +
+//!   EPS)` and remodulated at the end, as the paper's loss on `o * albedo`;
+//! - network input (13 channels): `clamp(r, 0, 1)^(1/2.2)` of the 1-spp and
+//!   of the TA radiance (3 + 3), albedo (3), `n * 0.5 + 0.5` (3), depth
+//!   normalised over the frame (1);
+//! - kernel predictor: 3x3 convolutions with ReLU, 13 -> 12 (full), max pool,
+//!   12 -> 24 (half), max pool, 24 -> 32 -> 32 (quarter), nearest upsample,
+//!   concatenation with the half-scale features, 56 -> 32 (half); from there
+//!   a 1x1 head 32 -> 49 gives `K_1spp` (half scale); nearest upsample,
+//!   concatenation with the full-scale features, 44 -> 16 (full) and a 1x1
+//!   head 16 -> 50 gives `K_TA` (49) and the fusion weight's logit (1);
+//! - kernels are the softmax of their 49 logits per pixel (convex weights,
+//!   robust to HDR), the fusion weight a sigmoid;
+//! - refinement: input `log1p(i)` (3) and the auxiliary buffers (7); 3x3
+//!   convolutions 10 -> 12 -> 12 (ReLU) -> 3; the residual is added in
+//!   `log1p` space, `o = expm1(log1p(i) + R)`, so a bright pixel's
+//!   correction scales with it;
+//! - loss: SMAPE on linear HDR (the paper's, eps 0.01 as WSKP).
+
+use mcdenoise_core::conv::Activation;
+use mcdenoise_core::pool::{self, grad as pgrad, Reduce};
+use mcdenoise_core::softmax::{self, grad as sgrad};
+use mcdenoise_core::tonemap::{self, Map};
+use mcdenoise_core::unfold::{self, grad as ugrad};
+use mcdenoise_core::{Isa, View, ViewMut, F32};
+
+use crate::error::{HostError, Result};
+use crate::frame::{Buffer, Frame};
+use crate::methods::{Ctx, Denoiser, Plan, TemporalAccumulation, Timings};
+use crate::nn::infer::Inference;
+use crate::nn::loss::Loss;
+use crate::nn::weights::File;
+use crate::nn::{Conv, Layer, Net, NetDesc, Nets, Workspace};
+use crate::par::Pool;
+use crate::precision::{HostPrecision, Kind, Planes};
+
+/// Albedo epsilon of the (de)modulation.
+pub const EPS: f32 = 0.01;
+/// Kernel size.
+pub const K: usize = 7;
+/// Taps per kernel.
+pub const TAPS: usize = K * K;
+/// Kernel-predictor input channels.
+pub const CIN: usize = 13;
+/// Refinement input channels.
+pub const RIN: usize = 10;
+
+fn conv(k: usize, cout: usize, act: Activation) -> Layer {
+    Layer::Conv(Conv { k, cout, act, repvgg: false, bias: true })
+}
+
+/// The kernel predictor (two heads: `K_1spp` logits at half scale; `K_TA`
+/// logits and the fusion logit at full scale).
+pub fn kernel_net() -> Result<Net> {
+    let r = Activation::Relu;
+    Net::new(NetDesc {
+        cin: CIN,
+        layers: vec![
+            conv(3, 12, r),
+            Layer::Save,
+            Layer::MaxPool,
+            conv(3, 24, r),
+            Layer::Save,
+            Layer::MaxPool,
+            conv(3, 32, r),
+            conv(3, 32, r),
+            Layer::Upsample { bilinear: false },
+            Layer::Concat,
+            conv(3, 32, r),
+            Layer::Save,
+            conv(1, TAPS, Activation::Identity),
+            Layer::Output,
+            Layer::Pop,
+            Layer::Upsample { bilinear: false },
+            Layer::Concat,
+            conv(3, 16, r),
+            conv(1, TAPS + 1, Activation::Identity),
+        ],
+    })
+}
+
+/// The refinement network (`log1p(i)` and the auxiliary buffers to the
+/// residual in `log1p` space).
+pub fn refine_net() -> Result<Net> {
+    let r = Activation::Relu;
+    Net::new(NetDesc { cin: RIN, layers: vec![conv(3, 12, r), conv(3, 12, r), conv(3, 3, Activation::Identity)] })
+}
+
+/// Checks a frame has the networks' inputs.
+pub fn check_inputs(f: &Frame) -> Result<()> {
+    for b in [Buffer::Albedo, Buffer::Normal, Buffer::Depth] {
+        f.require(b, "afn (its networks' inputs)")?;
+    }
+    Ok(())
+}
+
+/// A frame's tensors from its accumulated radiance `t`: the network input
+/// `x` (13 planes), the demodulated 1-spp and TA irradiance `c1`, `ct` (3
+/// each) and the remodulation albedo `alb` (3, `a + EPS`).
+#[allow(clippy::too_many_arguments)]
+pub fn inputs(
+    pool: &Pool,
+    isa: Isa,
+    f: &Frame,
+    t: &[f32],
+    x: &mut [f32],
+    c1: &mut [f32],
+    ct: &mut [f32],
+    alb: &mut [f32],
+) -> Result<()> {
+    let n = f.width * f.height;
+    let r = f.require(Buffer::Color, "afn")?;
+    let a = f.require(Buffer::Albedo, "afn")?;
+    let nrm = f.require(Buffer::Normal, "afn")?;
+    let d = f.require(Buffer::Depth, "afn")?;
+    let isa = isa.check()?.isa();
+    let (lo, hi) = d.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &v| (l.min(v), h.max(v)));
+    let inv = if hi > lo { 1.0 / (hi - lo) } else { 0.0 };
+    let mut planes: Vec<&mut [f32]> = x.chunks_mut(n).collect();
+    planes.extend(c1.chunks_mut(n));
+    planes.extend(ct.chunks_mut(n));
+    planes.extend(alb.chunks_mut(n));
+    pool.planes(planes, 1 << 14, |start, runs| {
+        let len = runs[0].len();
+        fn seg(v: &[f32], ch: usize, n: usize, start: usize, len: usize) -> &[f32] {
+            &v[ch * n + start..ch * n + start + len]
+        }
+        let gamma = Map::Gamma { gamma: 2.2, clamp: true };
+        for ch in 0..3 {
+            for (src, dst) in [(seg(r, ch, n, start, len), ch), (seg(t, ch, n, start, len), 3 + ch)] {
+                let sv = View::new(src, 1, len, 1).expect("a run");
+                tonemap::map::<F32>(isa, gamma, &sv, &mut ViewMut::new(runs[dst], 1, len, 1).expect("a run"))
+                    .expect("checked ISA and shapes");
+            }
+            runs[6 + ch].copy_from_slice(seg(a, ch, n, start, len));
+            for (o, &v) in runs[9 + ch].iter_mut().zip(seg(nrm, ch, n, start, len)) {
+                *o = v * 0.5 + 0.5;
+            }
+            let (rest, al) = runs[13..].split_at_mut(6);
+            let (cr1, crt) = rest.split_at_mut(3);
+            let (rv, tv, av) = (seg(r, ch, n, start, len), seg(t, ch, n, start, len), seg(a, ch, n, start, len));
+            for i in 0..len {
+                let q = av[i] + EPS;
+                al[ch][i] = q;
+                cr1[ch][i] = rv[i] / q;
+                crt[ch][i] = tv[i] / q;
+            }
+        }
+        for (o, &v) in runs[12].iter_mut().zip(seg(d, 0, n, start, len)) {
+            *o = (v - lo) * inv;
+        }
+    });
+    Ok(())
+}
+
+/// The training buffers of a crop, in `wss[0].aux` (the refinement net's
+/// workspace is `wss[1]`).
+pub mod buf {
+    /// `c1, ct, alb, ref` (3 planes each) and the refinement's auxiliary
+    /// buffers (7): 19 planes, full scale.
+    pub const DATA: usize = 0;
+    /// `K_1spp` (49, half).
+    pub const K1: usize = 1;
+    /// `K_TA` (49, full).
+    pub const KT: usize = 2;
+    /// Fusion weight (1, full).
+    pub const ALPHA: usize = 3;
+    /// The pooled 1-spp irradiance (3, half).
+    pub const D1: usize = 4;
+    /// Filtered 1 spp (3, half).
+    pub const F1: usize = 5;
+    /// Filtered TA (3, full).
+    pub const FT: usize = 6;
+    /// Fused `i` (3, full).
+    pub const I: usize = 7;
+    /// Refined `o` (3, full).
+    pub const O: usize = 8;
+    /// The remodulated output (3, full).
+    pub const OUT: usize = 9;
+    /// Gradient of the output (3, full).
+    pub const G_OUT: usize = 10;
+    /// Gradient of `i` (3, full).
+    pub const G_I: usize = 11;
+    /// Gradient of `d_TA` (3, full).
+    pub const G_FT: usize = 12;
+    /// Gradient of `d_1spp` (3, half).
+    pub const G_F1: usize = 13;
+    /// Gradient of the fusion weight (1, full).
+    pub const G_ALPHA: usize = 14;
+    /// Gradient of `K_TA` (49, full).
+    pub const G_KT: usize = 15;
+    /// Gradient of `K_1spp` (49, half).
+    pub const G_K1: usize = 16;
+    /// Scratch of the apply.
+    pub const SCRATCH: usize = 17;
+    /// Planes of [`DATA`].
+    pub const DATA_PLANES: usize = 19;
+}
+
+/// Allocates a crop's training buffers once.
+pub fn crop_buffers(wss: &mut [Workspace]) {
+    let (w, h) = wss[0].size();
+    if !wss[0].aux.is_empty() {
+        return;
+    }
+    let (n, nh) = (w * h, w.div_ceil(2) * h.div_ceil(2));
+    let sizes = [
+        buf::DATA_PLANES * n,
+        TAPS * nh,
+        TAPS * n,
+        n,
+        3 * nh,
+        3 * nh,
+        3 * n,
+        3 * n,
+        3 * n,
+        3 * n,
+        3 * n,
+        3 * n,
+        3 * n,
+        3 * nh,
+        n,
+        TAPS * n,
+        TAPS * nh,
+        unfold::scratch_len::<F32>(K, 3, w),
+    ];
+    wss[0].aux = sizes.iter().map(|&s| vec![0.0; s]).collect();
+    if wss.len() > 1 {
+        wss[1].want_input_grad = true;
+    }
+}
+
+fn v(d: &[f32], c: usize, w: usize, h: usize) -> Result<View<'_, f32>> {
+    Ok(View::new(d, c, w, h)?)
+}
+
+fn vm(d: &mut [f32], c: usize, w: usize, h: usize) -> Result<ViewMut<'_, f32>> {
+    Ok(ViewMut::new(d, c, w, h)?)
+}
+
+/// The training head of a crop: kernels, filtering, fusion, (refinement),
+/// the loss against the reference and every gradient back to the kernel
+/// predictor's heads. `refine`: with the refinement network (`wss[1]`).
+pub fn head(nets: &Nets<'_>, wss: &mut [Workspace], loss: Loss, scale: f32, refine: bool) -> Result<f32> {
+    let isa = nets.isa;
+    let (w, h) = wss[0].size();
+    let (wh, hh) = (w.div_ceil(2), h.div_ceil(2));
+    let n = w * h;
+    let (ws0, rest) = wss.split_first_mut().expect("a workspace per network");
+    let (outs, mut grads, aux) = ws0.heads(nets.net(0));
+    let (logit1, logit_t) = (outs[0], outs[1]);
+    let [data, k1, kt, alpha, d1, f1, ft, ib, ob, outb, g_out, g_i, g_ft, g_f1, g_a, g_kt, g_k1, scratch] = aux
+        .get_disjoint_mut([0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17])
+        .map_err(|_| HostError::Usage("afn: crop buffers missing".into()))?;
+    let (c1, rest_d) = data.split_at(3 * n);
+    let (ct, rest_d) = rest_d.split_at(3 * n);
+    let (alb, rest_d) = rest_d.split_at(3 * n);
+    let (reff, feats) = rest_d.split_at(3 * n);
+    // Kernels and the fusion weight.
+    softmax::channel_softmax::<F32>(isa, &v(logit1, TAPS, wh, hh)?, &mut vm(k1, TAPS, wh, hh)?)?;
+    softmax::channel_softmax::<F32>(isa, &v(&logit_t[..TAPS * n], TAPS, w, h)?, &mut vm(kt, TAPS, w, h)?)?;
+    sgrad::sigmoid(isa, &v(&logit_t[TAPS * n..], 1, w, h)?, &mut vm(alpha, 1, w, h)?)?;
+    // Filtering: K_1spp on the pooled 1 spp, K_TA on TA; then the fusion.
+    pool::reduce2x2::<F32>(isa, Reduce::Mean, &v(c1, 3, w, h)?, &mut vm(d1, 3, wh, hh)?, 0)?;
+    let sl = unfold::scratch_len::<F32>(K, 3, wh);
+    unfold::apply::<F32>(
+        isa,
+        K,
+        &v(k1, TAPS, wh, hh)?,
+        &v(d1, 3, wh, hh)?,
+        &mut vm(f1, 3, wh, hh)?,
+        &mut scratch[..sl],
+    )?;
+    unfold::apply::<F32>(isa, K, &v(kt, TAPS, w, h)?, &v(ct, 3, w, h)?, &mut vm(ft, 3, w, h)?, scratch)?;
+    pool::composite::<F32>(isa, &v(ft, 3, w, h)?, &v(f1, 3, wh, hh)?, &v(alpha, 1, w, h)?, &mut vm(ib, 3, w, h)?, 0)?;
+    // Refinement in log1p space.
+    if refine {
+        let ws1 = &mut rest[0];
+        let inp = ws1.input_mut();
+        for (d, &iv) in inp[..3 * n].iter_mut().zip(ib.iter()) {
+            *d = iv.max(0.0).ln_1p();
+        }
+        inp[3 * n..].copy_from_slice(feats);
+        nets.forward(1, ws1)?;
+        let rr = ws1.output();
+        for k in 0..3 * n {
+            ob[k] = (ib[k].max(0.0).ln_1p() + rr[k]).exp_m1();
+        }
+    } else {
+        ob.copy_from_slice(ib);
+    }
+    // Remodulate, the loss and its gradient.
+    for k in 0..3 * n {
+        outb[k] = ob[k] * alb[k];
+    }
+    let l = loss.eval(outb, reff, g_out, scale);
+    // Back through the remodulation and the refinement to i.
+    if refine {
+        let ws1 = &mut rest[0];
+        let (_, rg, _) = ws1.head_parts();
+        for k in 0..3 * n {
+            rg[k] = g_out[k] * alb[k] * (ob[k] + 1.0);
+        }
+        nets.backward(1, ws1)?;
+        let gin = ws1.input_grad();
+        for k in 0..3 * n {
+            let through = rg_value(g_out[k], alb[k], ob[k]) + gin[k];
+            g_i[k] = if ib[k] > 0.0 { through / (1.0 + ib[k]) } else { 0.0 };
+        }
+    } else {
+        for k in 0..3 * n {
+            g_i[k] = g_out[k] * alb[k];
+        }
+    }
+    // The compositor, the applies, the softmaxes and the sigmoid.
+    pgrad::composite_grad(
+        isa,
+        &v(ft, 3, w, h)?,
+        &v(f1, 3, wh, hh)?,
+        &v(alpha, 1, w, h)?,
+        &v(g_i, 3, w, h)?,
+        &mut vm(g_ft, 3, w, h)?,
+        &mut vm(g_f1, 3, wh, hh)?,
+        &mut vm(g_a, 1, w, h)?,
+        0,
+    )?;
+    ugrad::apply_grad(
+        isa,
+        K,
+        &v(kt, TAPS, w, h)?,
+        &v(ct, 3, w, h)?,
+        &v(g_ft, 3, w, h)?,
+        Some(&mut vm(g_kt, TAPS, w, h)?),
+        None,
+        0,
+    )?;
+    ugrad::apply_grad(
+        isa,
+        K,
+        &v(k1, TAPS, wh, hh)?,
+        &v(d1, 3, wh, hh)?,
+        &v(g_f1, 3, wh, hh)?,
+        Some(&mut vm(g_k1, TAPS, wh, hh)?),
+        None,
+        0,
+    )?;
+    sgrad::channel_softmax_grad(isa, &v(k1, TAPS, wh, hh)?, &v(g_k1, TAPS, wh, hh)?, &mut vm(grads[0], TAPS, wh, hh)?)?;
+    let (gkt_logits, ga_logit) = grads[1].split_at_mut(TAPS * n);
+    sgrad::channel_softmax_grad(isa, &v(kt, TAPS, w, h)?, &v(g_kt, TAPS, w, h)?, &mut vm(gkt_logits, TAPS, w, h)?)?;
+    sgrad::sigmoid_grad(isa, &v(alpha, 1, w, h)?, &v(g_a, 1, w, h)?, &mut vm(ga_logit, 1, w, h)?)?;
+    let _ = &mut grads;
+    Ok(l)
+}
+
+/// The refinement output's gradient: `d out / d r = alb (o + 1)` times the
+/// output's gradient.
+#[inline]
+fn rg_value(g_out: f32, alb: f32, o: f32) -> f32 {
+    g_out * alb * (o + 1.0)
+}
+
+/// The `afn` method: temporal accumulation, the kernel predictor, the two
+/// filters, the scale compositor and (unless `--no-refine`) the refinement,
+/// every operator in precision `P` (the sigmoid and the `log1p`-space
+/// residual in f32).
+pub struct Afn<P: HostPrecision> {
+    plan: Plan,
+    kernel_net: Net,
+    refine_net: Net,
+    params: (Vec<f32>, Vec<f32>),
+    refine: bool,
+    ta: TemporalAccumulation<P>,
+    infer: Option<(Inference<P>, Inference<P>)>,
+    bufs: Option<Vec<Vec<f32>>>,
+}
+
+/// The tensor names of the two networks in one weights file: the kernel
+/// predictor's as `layers.*` (see [`crate::nn::weights`]), the refinement's
+/// the same under `refine.` (saved by [`save`]).
+pub fn split_params(file: &File, kn: &Net, rn: &Net) -> Result<(Vec<f32>, Vec<f32>)> {
+    file.expect_meta("format", "mcdenoise-afn")?;
+    let all = file.names();
+    let refine_names: Vec<&str> = all.iter().map(|s| s.as_str()).filter(|n| n.starts_with("refine.")).collect();
+    let mut extra: Vec<&str> = refine_names.clone();
+    extra.extend(["adam.m", "adam.v"]);
+    let kp = file.params(kn, "afn", &extra)?;
+    let rp = file.params_prefixed(rn, "refine.")?;
+    Ok((kp, rp))
+}
+
+/// Saves both networks' parameters.
+pub fn save(path: &std::path::Path, kn: &Net, kp: &[f32], rn: &Net, rp: &[f32], meta: &[(&str, String)]) -> Result<()> {
+    use crate::nn::weights::{param_tensors, Form, Tensor};
+    let mut owned = param_tensors(kn, kp, Form::Branches);
+    owned.extend(param_tensors(rn, rp, Form::Branches).into_iter().map(|(n, s, d)| (format!("refine.{n}"), s, d)));
+    let tensors: Vec<Tensor<'_>> =
+        owned.iter().map(|(n, s, d)| Tensor { name: n.clone(), shape: s.clone(), data: d }).collect();
+    let mut all =
+        vec![("format", "mcdenoise-afn".to_string()), ("version", "1".to_string()), ("form", "branches".to_string())];
+    all.extend(meta.iter().cloned());
+    crate::nn::weights::save(path, &tensors, &all)
+}
+
+impl<P: HostPrecision> Afn<P> {
+    /// For a sequence starting with `first`, with the weights in `file`.
+    pub fn new(first: &Frame, file: &File, refine: bool) -> Result<Self> {
+        let (kn, rn) = (kernel_net()?, refine_net()?);
+        let params = split_params(file, &kn, &rn)?;
+        Self::from_params(first, params, refine)
+    }
+
+    /// With parameters in hand (kernel predictor, refinement).
+    pub fn from_params(first: &Frame, params: (Vec<f32>, Vec<f32>), refine: bool) -> Result<Self> {
+        check_inputs(first)?;
+        let ta = TemporalAccumulation::<P>::new(first, false)?;
+        let mut plan = ta.plan().clone();
+        plan.built.extend([
+            "kernel predictor (7x7 kernels at two scales)",
+            "filter 1 spp (half scale) and TA",
+            "scale compositor",
+        ]);
+        if refine {
+            plan.built.push("refinement");
+        } else {
+            plan.skipped.push(("refinement", "--no-refine".into()));
+        }
+        Ok(Afn {
+            plan,
+            kernel_net: kernel_net()?,
+            refine_net: refine_net()?,
+            params,
+            refine,
+            ta,
+            infer: None,
+            bufs: None,
+        })
+    }
+}
+
+/// f32 planes in precision `P` with the format of `kind`.
+fn store<P: HostPrecision>(c: usize, w: usize, h: usize, d: &[f32], kind: Kind) -> Planes<P::Store> {
+    Planes::<P::Store>::encode_as::<P>(c, w, h, d, kind)
+}
+
+impl<P: HostPrecision> Denoiser for Afn<P> {
+    fn name(&self) -> &'static str {
+        "afn"
+    }
+    fn plan(&self) -> &Plan {
+        &self.plan
+    }
+    fn denoise(&mut self, f: &Frame, ctx: &mut Ctx, t: &mut Timings) -> Result<Vec<f32>> {
+        check_inputs(f)?;
+        let (w, h) = (f.width, f.height);
+        let (wh, hh) = (w.div_ceil(2), h.div_ceil(2));
+        let n = w * h;
+        let isa = ctx.isa;
+        let (color, _) = self.ta.step(f, ctx, t)?;
+        let ta = t.time("decode", || color.decode::<P>());
+        let bufs = self.bufs.get_or_insert_with(Vec::new);
+        if bufs.first().is_none_or(|x| x.len() != CIN * n) {
+            *bufs = vec![vec![0.0; CIN * n], vec![0.0; 3 * n], vec![0.0; 3 * n], vec![0.0; 3 * n]];
+        }
+        let [x, c1, ct, alb] = bufs.get_disjoint_mut([0, 1, 2, 3]).expect("four buffers");
+        t.time("network inputs", || inputs(&ctx.pool, isa, f, &ta, x, c1, ct, alb))?;
+        if self.infer.is_none() {
+            let (kr, rr) = if P::NAME == "fixed" {
+                // The formats from an f32 run on the first frame.
+                let mut k32 = Inference::<F32>::new(&self.kernel_net, &self.params.0, None, None)?;
+                let kr = k32.ranges(ctx, Planes::<f32>::from_vec(CIN, w, h, x.clone()))?;
+                let mut r32 = Inference::<F32>::new(&self.refine_net, &self.params.1, None, None)?;
+                let mut rin = vec![0.0f32; RIN * n];
+                rin[3 * n..].copy_from_slice(&x[6 * n..]);
+                for (d, &tv) in rin[..3 * n].iter_mut().zip(ct.iter()) {
+                    *d = tv.max(0.0).ln_1p();
+                }
+                (Some(kr), Some(r32.ranges(ctx, Planes::<f32>::from_vec(RIN, w, h, rin))?))
+            } else {
+                (None, None)
+            };
+            self.infer = Some((
+                Inference::<P>::new(
+                    &self.kernel_net,
+                    &self.params.0,
+                    kr.as_deref(),
+                    Some(mcdenoise_core::fixed::LOGIT_FRAC),
+                )?,
+                Inference::<P>::new(&self.refine_net, &self.params.1, rr.as_deref(), None)?,
+            ));
+        }
+        let (kinf, rinf) = self.infer.as_mut().expect("just built");
+        let xin = t.time("encode", || {
+            let mut p = Planes::<P::Store>::new(CIN, w, h).with_frac(kinf.input_frac());
+            P::encode(x, &mut p.data, p.frac);
+            p
+        });
+        t.time("kernel predictor", || kinf.run(ctx, xin))?;
+        let (l1, lt) = (kinf.output(0).view(), kinf.output(1).view());
+        // Kernels (softmax over the 49 taps) and the fusion weight.
+        let kfrac = if P::NAME == "fixed" { mcdenoise_core::fixed::KERNEL_FRAC } else { 0 };
+        let mut k1 = Planes::<P::Store>::new(TAPS, wh, hh).with_frac(kfrac);
+        let mut kt = Planes::<P::Store>::new(TAPS, w, h).with_frac(kfrac);
+        t.time("kernel softmax", || -> Result<()> {
+            softmax::channel_softmax::<P>(isa, &l1, &mut k1.view_mut())?;
+            softmax::channel_softmax::<P>(isa, &lt.channels_range(0, TAPS)?, &mut kt.view_mut())?;
+            Ok(())
+        })?;
+        let alpha = t.time("fusion weight", || -> Result<Planes<P::Store>> {
+            let mut a32 = vec![0.0f32; n];
+            let mut lg = vec![0.0f32; n];
+            let lp = lt.channels_range(TAPS, 1)?;
+            for y in 0..h {
+                P::decode(lp.row(0, y), &mut lg[y * w..(y + 1) * w], lp.frac());
+            }
+            sgrad::sigmoid(isa, &View::new(&lg, 1, w, h)?, &mut ViewMut::new(&mut a32, 1, w, h)?)?;
+            Ok(store::<P>(1, w, h, &a32, Kind::Unit))
+        })?;
+        let (c1s, cts) = (store::<P>(3, w, h, c1, Kind::Image), store::<P>(3, w, h, ct, Kind::Image));
+        let mut d1 = Planes::<P::Store>::new(3, wh, hh).with_frac(c1s.frac);
+        let mut f1 = Planes::<P::Store>::new(3, wh, hh).with_frac(c1s.frac);
+        let mut ft = Planes::<P::Store>::new(3, w, h).with_frac(cts.frac);
+        let mut fused = Planes::<P::Store>::new(3, w, h).with_frac(cts.frac.min(c1s.frac) - 1);
+        t.time("filter and fuse", || -> Result<()> {
+            let (c1v, ctv) = (c1s.view(), cts.view());
+            ctx.pool.bands(d1.view_mut(), 1, &mut ctx.scratch, 0, |b, y0, _| {
+                pool::reduce2x2::<P>(isa, Reduce::Mean, &c1v, b, y0)
+            })?;
+            let (k1v, d1v) = (k1.view(), d1.view());
+            let len = unfold::scratch_len::<P>(K, 3, w);
+            ctx.pool.bands(f1.view_mut(), 1, &mut ctx.scratch, len, |b, y0, s| {
+                unfold::apply_rows::<P>(isa, K, &k1v, &d1v, b, y0, s)
+            })?;
+            let ktv = kt.view();
+            ctx.pool.bands(ft.view_mut(), 1, &mut ctx.scratch, len, |b, y0, s| {
+                unfold::apply_rows::<P>(isa, K, &ktv, &ctv, b, y0, s)
+            })?;
+            let (ftv, f1v, av) = (ft.view(), f1.view(), alpha.view());
+            ctx.pool.bands(fused.view_mut(), 2, &mut ctx.scratch, 0, |b, y0, _| {
+                pool::composite::<P>(isa, &ftv, &f1v, &av, b, y0)
+            })?;
+            Ok(())
+        })?;
+        let i = t.time("decode", || fused.decode::<P>());
+        let mut out = vec![0.0f32; 3 * n];
+        if self.refine {
+            let mut rin = vec![0.0f32; RIN * n];
+            for (d, &iv) in rin[..3 * n].iter_mut().zip(&i) {
+                *d = iv.max(0.0).ln_1p();
+            }
+            rin[3 * n..].copy_from_slice(&x[6 * n..]);
+            let mut rp = Planes::<P::Store>::new(RIN, w, h).with_frac(rinf.input_frac());
+            P::encode(&rin, &mut rp.data, rp.frac);
+            let r = t.time("refinement", || rinf.run(ctx, rp))?.decode::<P>();
+            for k in 0..3 * n {
+                out[k] = (rin[k] + r[k]).exp_m1() * alb[k];
+            }
+        } else {
+            for k in 0..3 * n {
+                out[k] = i[k] * alb[k];
+            }
+        }
+        Ok(out)
+    }
+}
