@@ -47,6 +47,33 @@ use crate::precision::{HostPrecision, Kind, Planes};
 
 /// Albedo epsilon of the (de)modulation.
 pub const EPS: f32 = 0.01;
+
+/// Which images the network filters (the paper's Table 11 ablation).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Variant {
+    /// Both, fused by the scale compositor: AFN.
+    Fusion,
+    /// The TA image only (full scale, its kernels; the network sees TA twice).
+    TaOnly,
+    /// The 1-spp image only (full scale, the full-scale kernels; the network
+    /// sees the 1-spp image twice).
+    OneSppOnly,
+}
+
+impl Variant {
+    /// The name in weights files and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Variant::Fusion => "fusion",
+            Variant::TaOnly => "ta-only",
+            Variant::OneSppOnly => "1spp-only",
+        }
+    }
+    /// By name.
+    pub fn parse(s: &str) -> Option<Variant> {
+        [Variant::Fusion, Variant::TaOnly, Variant::OneSppOnly].into_iter().find(|v| v.name() == s)
+    }
+}
 /// Kernel size.
 pub const K: usize = 7;
 /// Taps per kernel.
@@ -112,6 +139,7 @@ pub fn check_inputs(f: &Frame) -> Result<()> {
 pub fn inputs(
     pool: &Pool,
     isa: Isa,
+    variant: Variant,
     f: &Frame,
     t: &[f32],
     x: &mut [f32],
@@ -121,6 +149,12 @@ pub fn inputs(
 ) -> Result<()> {
     let n = f.width * f.height;
     let r = f.require(Buffer::Color, "afn")?;
+    // A single-image variant sees that image in both slots.
+    let (r, t) = match variant {
+        Variant::Fusion => (r, t),
+        Variant::TaOnly => (t, t),
+        Variant::OneSppOnly => (r, r),
+    };
     let a = f.require(Buffer::Albedo, "afn")?;
     let nrm = f.require(Buffer::Normal, "afn")?;
     let d = f.require(Buffer::Depth, "afn")?;
@@ -252,7 +286,14 @@ fn vm(d: &mut [f32], c: usize, w: usize, h: usize) -> Result<ViewMut<'_, f32>> {
 /// The training head of a crop: kernels, filtering, fusion, (refinement),
 /// the loss against the reference and every gradient back to the kernel
 /// predictor's heads. `refine`: with the refinement network (`wss[1]`).
-pub fn head(nets: &Nets<'_>, wss: &mut [Workspace], loss: Loss, scale: f32, refine: bool) -> Result<f32> {
+pub fn head(
+    nets: &Nets<'_>,
+    wss: &mut [Workspace],
+    loss: Loss,
+    scale: f32,
+    refine: bool,
+    variant: Variant,
+) -> Result<f32> {
     let isa = nets.isa;
     let (w, h) = wss[0].size();
     let (wh, hh) = (w.div_ceil(2), h.div_ceil(2));
@@ -283,7 +324,21 @@ pub fn head(nets: &Nets<'_>, wss: &mut [Workspace], loss: Loss, scale: f32, refi
         &mut scratch[..sl],
     )?;
     unfold::apply::<F32>(isa, K, &v(kt, TAPS, w, h)?, &v(ct, 3, w, h)?, &mut vm(ft, 3, w, h)?, scratch)?;
-    pool::composite::<F32>(isa, &v(ft, 3, w, h)?, &v(f1, 3, wh, hh)?, &v(alpha, 1, w, h)?, &mut vm(ib, 3, w, h)?, 0)?;
+    // A single-image variant filters it at full scale with the full-scale
+    // kernels (its data slot `ct` holds that image) and skips the fusion.
+    let fused = variant == Variant::Fusion;
+    if fused {
+        pool::composite::<F32>(
+            isa,
+            &v(ft, 3, w, h)?,
+            &v(f1, 3, wh, hh)?,
+            &v(alpha, 1, w, h)?,
+            &mut vm(ib, 3, w, h)?,
+            0,
+        )?;
+    } else {
+        ib.copy_from_slice(ft);
+    }
     // Refinement in log1p space.
     if refine {
         let ws1 = &mut rest[0];
@@ -324,17 +379,23 @@ pub fn head(nets: &Nets<'_>, wss: &mut [Workspace], loss: Loss, scale: f32, refi
         }
     }
     // The compositor, the applies, the softmaxes and the sigmoid.
-    pgrad::composite_grad(
-        isa,
-        &v(ft, 3, w, h)?,
-        &v(f1, 3, wh, hh)?,
-        &v(alpha, 1, w, h)?,
-        &v(g_i, 3, w, h)?,
-        &mut vm(g_ft, 3, w, h)?,
-        &mut vm(g_f1, 3, wh, hh)?,
-        &mut vm(g_a, 1, w, h)?,
-        0,
-    )?;
+    if !fused {
+        g_ft.copy_from_slice(g_i);
+        g_f1.fill(0.0);
+        g_a.fill(0.0);
+    } else {
+        pgrad::composite_grad(
+            isa,
+            &v(ft, 3, w, h)?,
+            &v(f1, 3, wh, hh)?,
+            &v(alpha, 1, w, h)?,
+            &v(g_i, 3, w, h)?,
+            &mut vm(g_ft, 3, w, h)?,
+            &mut vm(g_f1, 3, wh, hh)?,
+            &mut vm(g_a, 1, w, h)?,
+            0,
+        )?;
+    }
     ugrad::apply_grad(
         isa,
         K,
@@ -380,6 +441,7 @@ pub struct Afn<P: HostPrecision> {
     refine_net: Net,
     params: (Vec<f32>, Vec<f32>),
     refine: bool,
+    variant: Variant,
     ta: TemporalAccumulation<P>,
     infer: Option<(Inference<P>, Inference<P>)>,
     bufs: Option<Vec<Vec<f32>>>,
@@ -417,11 +479,17 @@ impl<P: HostPrecision> Afn<P> {
     pub fn new(first: &Frame, file: &File, refine: bool) -> Result<Self> {
         let (kn, rn) = (kernel_net()?, refine_net()?);
         let params = split_params(file, &kn, &rn)?;
-        Self::from_params(first, params, refine)
+        let variant = match file.meta("variant") {
+            None => Variant::Fusion,
+            Some(v) => {
+                Variant::parse(&v).ok_or_else(|| HostError::Usage(format!("afn weights: unknown variant '{v}'")))?
+            }
+        };
+        Self::from_params(first, params, refine, variant)
     }
 
     /// With parameters in hand (kernel predictor, refinement).
-    pub fn from_params(first: &Frame, params: (Vec<f32>, Vec<f32>), refine: bool) -> Result<Self> {
+    pub fn from_params(first: &Frame, params: (Vec<f32>, Vec<f32>), refine: bool, variant: Variant) -> Result<Self> {
         check_inputs(first)?;
         let ta = TemporalAccumulation::<P>::new(first, false)?;
         let mut plan = ta.plan().clone();
@@ -435,12 +503,16 @@ impl<P: HostPrecision> Afn<P> {
         } else {
             plan.skipped.push(("refinement", "--no-refine".into()));
         }
+        if variant != Variant::Fusion {
+            plan.skipped.push(("scale compositor", format!("the {} variant filters one image", variant.name())));
+        }
         Ok(Afn {
             plan,
             kernel_net: kernel_net()?,
             refine_net: refine_net()?,
             params,
             refine,
+            variant,
             ta,
             infer: None,
             bufs: None,
@@ -473,7 +545,8 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
             *bufs = vec![vec![0.0; CIN * n], vec![0.0; 3 * n], vec![0.0; 3 * n], vec![0.0; 3 * n]];
         }
         let [x, c1, ct, alb] = bufs.get_disjoint_mut([0, 1, 2, 3]).expect("four buffers");
-        t.time("network inputs", || inputs(&ctx.pool, isa, f, &ta, x, c1, ct, alb))?;
+        let variant = self.variant;
+        t.time("network inputs", || inputs(&ctx.pool, isa, variant, f, &ta, x, c1, ct, alb))?;
         if self.infer.is_none() {
             let (kr, rr) = if P::NAME == "fixed" {
                 // The formats from an f32 run on the first frame.

@@ -44,6 +44,7 @@ usage:
       --threads N, --isa I       as for denoise            --resume CKPT  continue from WEIGHTS.ckpt
       --checkpoint-minutes F     (default 5)               --val-every N  (default 500)
       --log CSV                  step, seconds, loss and validation PSNR per step
+      --variant V                afn: fusion (default) | ta-only | 1spp-only (the ablation)
   mcdenoise score --reference REF OUT [--json]
                                  REF and OUT: two files, or two directories (matched by name)
   mcdenoise help | --help | --version
@@ -286,6 +287,11 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
                     "--checkpoint-minutes" => a.checkpoint_minutes = float("--checkpoint-minutes", 0.0, 1e6)?,
                     "--val-every" => a.val_every = number("--val-every", &v, 0, 1 << 40)? as u64,
                     "--log" => a.log = Some(PathBuf::from(v)),
+                    "--variant" => {
+                        a.variant = crate::afn::Variant::parse(&v).ok_or_else(|| {
+                            usage(format!("--variant: expected fusion, ta-only or 1spp-only, got '{v}'"))
+                        })?
+                    }
                     _ => return Err(usage(format!("train: unknown option '{f}'"))),
                 }
             }

@@ -74,6 +74,8 @@ pub struct TrainArgs {
     pub val_every: u64,
     /// A CSV of (step, seconds, loss, validation PSNR) rows.
     pub log: Option<PathBuf>,
+    /// AFN: which images it filters.
+    pub variant: afn::Variant,
 }
 
 impl Default for TrainArgs {
@@ -98,6 +100,7 @@ impl Default for TrainArgs {
             checkpoint_minutes: 5.0,
             val_every: 500,
             log: None,
+            variant: afn::Variant::Fusion,
         }
     }
 }
@@ -255,34 +258,34 @@ enum Model {
     /// WSKP with this many layers.
     Wskp(usize),
     /// AFN, the kernel predictor and the refinement together.
-    Afn,
+    Afn(afn::Variant),
 }
 
 impl Model {
     fn name(self) -> &'static str {
         match self {
             Model::Wskp(_) => "wskp",
-            Model::Afn => "afn",
+            Model::Afn(_) => "afn",
         }
     }
     fn nets(self) -> Result<Vec<Net>> {
         Ok(match self {
             Model::Wskp(l) => vec![wskp::net(l)?],
-            Model::Afn => vec![afn::kernel_net()?, afn::refine_net()?],
+            Model::Afn(_) => vec![afn::kernel_net()?, afn::refine_net()?],
         })
     }
     /// Metadata every file of this model carries.
     fn meta(self) -> Vec<(&'static str, String)> {
         match self {
             Model::Wskp(l) => vec![("layers", l.to_string())],
-            Model::Afn => vec![],
+            Model::Afn(v) => vec![("variant", v.name().to_string())],
         }
     }
     /// Planes of a sample: the network input, then the model's own.
     fn planes(self) -> (usize, usize) {
         match self {
             Model::Wskp(_) => (wskp::CIN, 9),
-            Model::Afn => (afn::CIN, afn::buf::DATA_PLANES),
+            Model::Afn(_) => (afn::CIN, afn::buf::DATA_PLANES),
         }
     }
     /// The sequences' samples.
@@ -304,13 +307,13 @@ impl Model {
                         wskp::inputs(&pool, isa, f, t, x, c, alb)?;
                         rf.copy_from_slice(r);
                     }
-                    Model::Afn => {
+                    Model::Afn(variant) => {
                         afn::check_inputs(f)?;
                         let (c1, rest) = rest.split_at_mut(3 * n);
                         let (ct, rest) = rest.split_at_mut(3 * n);
                         let (alb, rest) = rest.split_at_mut(3 * n);
                         let (rf, feats) = rest.split_at_mut(3 * n);
-                        afn::inputs(&pool, isa, f, t, x, c1, ct, alb)?;
+                        afn::inputs(&pool, isa, variant, f, t, x, c1, ct, alb)?;
                         rf.copy_from_slice(r);
                         feats.copy_from_slice(&x[6 * n..]);
                     }
@@ -324,9 +327,9 @@ impl Model {
     fn denoiser(self, f: &Frame, nets: &[Net], params: &[f32]) -> Result<Box<dyn Denoiser>> {
         Ok(match self {
             Model::Wskp(l) => Box::new(wskp::Wskp::<F32>::from_params(f, nets[0].clone(), params.to_vec(), l)?),
-            Model::Afn => {
+            Model::Afn(v) => {
                 let k = nets[0].params;
-                Box::new(afn::Afn::<F32>::from_params(f, (params[..k].to_vec(), params[k..].to_vec()), true)?)
+                Box::new(afn::Afn::<F32>::from_params(f, (params[..k].to_vec(), params[k..].to_vec()), true, v)?)
             }
         })
     }
@@ -368,7 +371,7 @@ impl Model {
         }
         Ok(match self {
             Model::Wskp(_) => f.params(&nets[0], "wskp", &["adam.m", "adam.v"])?,
-            Model::Afn => {
+            Model::Afn(_) => {
                 let (kp, rp) = afn::split_params(f, &nets[0], &nets[1])?;
                 [kp, rp].concat()
             }
@@ -380,7 +383,7 @@ impl Model {
 pub fn run(a: &TrainArgs) -> Result<()> {
     let model = match a.method.as_str() {
         "wskp" => Model::Wskp(a.layers),
-        "afn" => Model::Afn,
+        "afn" => Model::Afn(a.variant),
         m => return Err(HostError::Usage(format!("train --method: expected wskp or afn, got '{m}'"))),
     };
     if a.steps.is_none() && a.minutes.is_none() {
@@ -397,7 +400,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     if let Some(small) = samples.iter().find(|x| x.w < s || x.h < s) {
         return Err(HostError::Usage(format!("--crop {s}: a frame is only {}x{}", small.w, small.h)));
     }
-    if model == Model::Afn && !s.is_multiple_of(4) {
+    if matches!(model, Model::Afn(_)) && !s.is_multiple_of(4) {
         return Err(HostError::Usage(format!("--crop {s}: afn needs a multiple of 4 (two 2x pools)")));
     }
     let val: Vec<Sequence> = match &a.val {
@@ -445,7 +448,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     for wss in tr.workspaces() {
         match model {
             Model::Wskp(_) => wskp::crop_buffers(&mut wss[0]),
-            Model::Afn => afn::crop_buffers(wss),
+            Model::Afn(_) => afn::crop_buffers(wss),
         }
     }
     let pool = crate::par::Pool::new(a.threads).map_err(HostError::Usage)?;
@@ -485,7 +488,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         };
         let head = |_: usize, nets: &Nets<'_>, wss: &mut [Workspace]| match model {
             Model::Wskp(_) => wskp::head(&mut wss[0], loss, scale, isa),
-            Model::Afn => afn::head(nets, wss, loss, scale, true),
+            Model::Afn(v) => afn::head(nets, wss, loss, scale, true, v),
         };
         let st = tr.step(&pool, a.isa, &fill, &head, true)?;
         step += 1;

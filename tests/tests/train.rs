@@ -171,7 +171,9 @@ fn afn_gradient_matches_finite_differences() {
         wss[0].aux[afn::buf::DATA].copy_from_slice(&data);
         Ok(())
     };
-    let head = |_: usize, nets: &Nets<'_>, wss: &mut [Workspace]| afn::head(nets, wss, Loss::RelMse, 1.0, true);
+    let head = |_: usize, nets: &Nets<'_>, wss: &mut [Workspace]| {
+        afn::head(nets, wss, Loss::RelMse, 1.0, true, afn::Variant::Fusion)
+    };
     for isa in isas_under_test() {
         let mut tr = make(&params);
         tr.step(&pool, isa, &fill, &head, false).unwrap();

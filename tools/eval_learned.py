@@ -1,0 +1,121 @@
+#!/usr/bin/env python3
+"""Scores every method on rendered held-out sequences and writes the tables
+of docs/quality.md: per sequence, PSNR / SSIM / relMSE / flicker of the
+input, TA, the classical denoisers, WSKP (3 and 6 layers, each precision),
+AFN (with and without refinement, each precision), the PyTorch WSKP peer
+and Intel Open Image Denoise.
+
+    python3 tools/eval_learned.py --test /work/data/test --weights DIR -o OUT_DIR
+
+DIR holds wskp6.safetensors, wskp3.safetensors, afn.safetensors (made by
+`mcdenoise train`, commands in docs/training.md) and optionally
+torch_wskp6.safetensors (tools/torch_wskp.py train). OUT_DIR gets
+quality.json (everything), quality.md (the tables) and per-frame PSNR CSVs.
+Python: the tools/.venv-peers environment (tools/setup-peers.sh) for OIDN
+and PyTorch; mcdenoise from target/release (or $MCDENOISE).
+"""
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+
+
+def mcd():
+    return os.environ.get('MCDENOISE', os.path.join(ROOT, 'target', 'release', 'mcdenoise'))
+
+
+def run(cmd):
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise RuntimeError('%s failed: %s' % (' '.join(cmd), r.stderr.strip()))
+    return r.stdout + r.stderr
+
+
+def score(ref_dir, out_dir):
+    j = json.loads(run([mcd(), 'score', '--reference', ref_dir, out_dir, '--json']).splitlines()[-1])
+    return j
+
+
+def methods(weights):
+    """(label, kind, args): kind 'mcd' runs mcdenoise denoise, 'oidn' and 'torch' the peers."""
+    w = lambda n: os.path.join(weights, n)
+    m = [('input', 'mcd', ['--method', 'none']),
+         ('ta', 'mcd', ['--method', 'ta']),
+         ('atrous', 'mcd', ['--method', 'atrous']),
+         ('sure-atrous', 'mcd', ['--method', 'sure-atrous'])]
+    if os.path.exists(w('wskp6.safetensors')):
+        for p in ('f32', 'f16', 'fixed'):
+            m.append(('wskp6 ' + p, 'mcd', ['--method', 'wskp', '--layers', '6', '--weights', w('wskp6.safetensors'), '--precision', p]))
+    if os.path.exists(w('wskp3.safetensors')):
+        for p in ('f32', 'f16', 'fixed'):
+            m.append(('wskp3 ' + p, 'mcd', ['--method', 'wskp', '--layers', '3', '--weights', w('wskp3.safetensors'), '--precision', p]))
+    if os.path.exists(w('afn.safetensors')):
+        m.append(('afn no-refine', 'mcd', ['--method', 'afn', '--weights', w('afn.safetensors'), '--no-refine']))
+        for p in ('f32', 'f16', 'fixed'):
+            m.append(('afn ' + p, 'mcd', ['--method', 'afn', '--weights', w('afn.safetensors'), '--precision', p]))
+    if os.path.exists(w('torch_wskp6.safetensors')):
+        m.append(('pytorch wskp6', 'torch', ['--weights', w('torch_wskp6.safetensors'), '--layers', '6']))
+    m.append(('oidn fast', 'oidn', ['--quality', 'fast']))
+    m.append(('oidn high', 'oidn', ['--quality', 'high']))
+    return m
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument('--test', required=True)
+    p.add_argument('--weights', required=True)
+    p.add_argument('-o', '--output', required=True)
+    p.add_argument('--only', help='comma-separated method labels')
+    a = p.parse_args()
+    py = os.path.join(HERE, '.venv-peers', 'bin', 'python')
+    seqs = sorted(d for d in os.listdir(a.test) if os.path.isdir(os.path.join(a.test, d)))
+    results = {}
+    os.makedirs(a.output, exist_ok=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        for seq in seqs:
+            sd = os.path.join(a.test, seq)
+            results[seq] = {}
+            for label, kind, args in methods(a.weights):
+                if a.only and label not in a.only.split(','):
+                    continue
+                od = os.path.join(tmp, seq, label.replace(' ', '_'))
+                if kind == 'mcd':
+                    run([mcd(), 'denoise'] + args + ['--threads', '2', sd, '-o', od])
+                elif kind == 'oidn':
+                    run([py, os.path.join(HERE, 'oidn_denoise.py'), sd, '-o', od] + args)
+                else:
+                    run([py, os.path.join(HERE, 'torch_wskp.py'), 'denoise'] + args + [sd, '-o', od])
+                j = score(os.path.join(sd, 'ref'), od)
+                results[seq][label] = {'mean': j['mean'], 'psnr': [f['psnr'] for f in j['files']]}
+                print('%-16s %-16s PSNR %6.2f dB  SSIM %.4f  relMSE %.5f  flicker %s' % (
+                    seq, label, j['mean']['psnr'], j['mean']['ssim'], j['mean']['relmse'], j['mean']['flicker']), flush=True)
+    with open(os.path.join(a.output, 'quality.json'), 'w') as f:
+        json.dump(results, f, indent=1)
+    lines = []
+    for seq, r in results.items():
+        base = r.get('input', {}).get('mean', {}).get('psnr')
+        lines.append('\n### %s\n' % seq)
+        lines.append('| method | PSNR dB | gain over input dB | SSIM | relMSE | flicker |')
+        lines.append('|---|---|---|---|---|---|')
+        for label, v in r.items():
+            m = v['mean']
+            gain = '%.2f' % (m['psnr'] - base) if base is not None else ''
+            fl = '%.4f' % m['flicker'] if m['flicker'] is not None else ''
+            lines.append('| %s | %.2f | %s | %.4f | %.4f | %s |' % (label, m['psnr'], gain, m['ssim'], m['relmse'], fl))
+        with open(os.path.join(a.output, 'psnr_%s.csv' % seq), 'w') as f:
+            labels = list(r)
+            f.write('frame,' + ','.join(labels) + '\n')
+            for i in range(len(r[labels[0]]['psnr'])):
+                f.write('%d,' % i + ','.join('%.3f' % r[l]['psnr'][i] for l in labels) + '\n')
+    with open(os.path.join(a.output, 'quality.md'), 'w') as f:
+        f.write('\n'.join(lines) + '\n')
+    print('wrote %s' % a.output)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
