@@ -493,11 +493,15 @@ impl<P: HostPrecision> Afn<P> {
         check_inputs(first)?;
         let ta = TemporalAccumulation::<P>::new(first, false)?;
         let mut plan = ta.plan().clone();
-        plan.built.extend([
-            "kernel predictor (7x7 kernels at two scales)",
-            "filter 1 spp (half scale) and TA",
-            "scale compositor",
-        ]);
+        match variant {
+            Variant::Fusion => plan.built.extend([
+                "kernel predictor (7x7 kernels at two scales)",
+                "filter 1 spp (half scale) and TA",
+                "scale compositor",
+            ]),
+            Variant::TaOnly => plan.built.extend(["kernel predictor", "filter TA (7x7)"]),
+            Variant::OneSppOnly => plan.built.extend(["kernel predictor", "filter 1 spp (7x7, full scale)"]),
+        }
         if refine {
             plan.built.push("refinement");
         } else {
