@@ -1,30 +1,37 @@
 #!/usr/bin/env python3
-"""WSKP (weight-sharing kernel prediction) in PyTorch: the peer the Rust
-implementation is measured against, written from the paper and the
-authors' facts in shared/reference.md to the same contract as
-std-host/src/wskp.rs (inputs, RepVGG ImportanceNet, fused filter, SMAPE).
+"""WSKP (weight-sharing kernel prediction denoising) in PyTorch: the peer the
+Rust implementation is compared with. It follows the contract of
+tools/README.md ("PyTorch and OIDN peers"): the same inputs, ImportanceNet
+(training-time 5x5 + 3x3 + 1x1 branches, identity on the middle layers,
+merged into one 5x5 conv for inference), fused filter, SMAPE loss and
+safetensors layout as the Rust side.
 
-    python tools/torch_wskp.py time [--threads 2]
-    python tools/torch_wskp.py train --data DIR --minutes 20 -o W.safetensors [--layers 6 --batch 8 --crop 64]
-    python tools/torch_wskp.py denoise --weights W --layers 6 IN_DIR -o OUT_DIR
-    python tools/torch_wskp.py fixture -o tests/fixtures/wskp_torch
+    torch_wskp.py train --data DIR [--val DIR] --minutes M -o W.safetensors
+                        [--threads 2 --batch 8 --crop 64 --layers 6 --seed S]
+    torch_wskp.py denoise --weights W [--layers L] IN_DIR -o OUT_DIR
+    torch_wskp.py time [--threads 2]
+    torch_wskp.py fixture -o tests/fixtures/wskp_torch
 
-Temporal accumulation comes from mcdenoise itself (`mcdenoise denoise
---method ta`, path in $MCDENOISE or target/release/mcdenoise), so both
-sides filter the same accumulated radiance. Weights are written in
-mcdenoise's safetensors layout (std-host/src/nn/weights.rs), so
-`mcdenoise denoise --method wskp --weights W` runs them too.
+The temporally accumulated radiance comes from `mcdenoise denoise --method
+ta` ($MCDENOISE, default /work/bin/mcdenoise), run once per sequence into a
+temporary directory.
 """
 import argparse
-import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
 import time
 
 import numpy as np
-import torch
+
+# On a machine shared with other jobs, OpenMP's default spin-waiting stalls
+# every parallel region whose partner thread is descheduled (measured here:
+# the WSKP-6 forward of a 8x64x64 batch took 0.9 s on 2 threads under load,
+# 0.06 s with passive waiting). Set OMP_WAIT_POLICY=ACTIVE to override.
+os.environ.setdefault('OMP_WAIT_POLICY', 'PASSIVE')
+import torch  # noqa: E402
 import torch.nn.functional as F
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -32,17 +39,30 @@ sys.path.insert(0, HERE)
 import exrio  # noqa: E402
 
 EPS = 0.01
-SIZES = [3, 5, 7, 9, 11, 13]
+SIZES = (3, 5, 7, 9, 11, 13)
+SMAPE_EPS = 0.01
+FORMAT = 'mcdenoise-wskp'
 
 
 def mcdenoise_bin():
-    return os.environ.get('MCDENOISE', os.path.join(HERE, '..', 'target', 'release', 'mcdenoise'))
+    return os.environ.get('MCDENOISE', '/work/bin/mcdenoise')
 
 
-# --- the network -------------------------------------------------------------
+# ----------------------------------------------------------------------------
+# The network
 
-class RepBlock(torch.nn.Module):
-    """5x5 + 3x3 + 1x1 convolutions (+ identity when cin == cout), no bias."""
+def layer_shapes(layers):
+    """(cin, cout) of each layer of the L-layer ImportanceNet."""
+    if layers == 6:
+        return [(10, 14)] + [(14, 14)] * 4 + [(14, 12)]
+    if layers == 3:
+        return [(10, 14), (14, 14), (14, 12)]
+    raise SystemExit('--layers must be 3 or 6, not %r' % layers)
+
+
+class RepLayer(torch.nn.Module):
+    """One training-time layer: 5x5 (pad 2) + 3x3 (pad 1) + 1x1 convolutions,
+    no bias, plus the identity when the channel counts are equal."""
 
     def __init__(self, cin, cout):
         super().__init__()
@@ -53,342 +73,565 @@ class RepBlock(torch.nn.Module):
 
     def forward(self, x):
         y = self.conv5(x) + self.conv3(x) + self.conv1(x)
-        return y + x if self.identity else y
+        if self.identity:
+            y = y + x
+        return y
 
-    def merged(self):
+    def merged_weight(self):
+        """The single 5x5 kernel [cout, cin, 5, 5] computing the same layer."""
         w = self.conv5.weight.detach().clone()
         w[:, :, 1:4, 1:4] += self.conv3.weight.detach()
-        w[:, :, 2:3, 2:3] += self.conv1.weight.detach()
+        w[:, :, 2, 2] += self.conv1.weight.detach()[:, :, 0, 0]
         if self.identity:
-            for o in range(w.shape[0]):
-                w[o, o, 2, 2] += 1.0
+            idx = torch.arange(w.shape[0])
+            w[idx, idx, 2, 2] += 1.0
         return w
 
 
-def channels(layers):
-    if layers == 6:
-        return [(10, 14), (14, 14), (14, 14), (14, 14), (14, 14), (14, 12)]
-    if layers == 3:
-        return [(10, 14), (14, 14), (14, 12)]
-    raise ValueError('layers must be 3 or 6')
-
-
 class ImportanceNet(torch.nn.Module):
+    """Training form. state_dict() names are the weights file's names
+    (layers.{i}.conv5.weight, ...)."""
+
     def __init__(self, layers):
         super().__init__()
-        self.blocks = torch.nn.ModuleList([RepBlock(a, b) for a, b in channels(layers)])
+        self.n_layers = layers
+        self.layers = torch.nn.ModuleList([RepLayer(a, b) for a, b in layer_shapes(layers)])
 
     def forward(self, x):
-        for i, b in enumerate(self.blocks):
-            x = b(x)
-            if i + 1 < len(self.blocks):
+        last = len(self.layers) - 1
+        for i, layer in enumerate(self.layers):
+            x = layer(x)
+            if i < last:
                 x = F.leaky_relu(x, 0.1)
         return x
 
+    def merged(self):
+        return [layer.merged_weight() for layer in self.layers]
 
-class MergedNet(torch.nn.Module):
-    """The inference form: one 5x5 convolution per layer."""
 
-    def __init__(self, net):
-        super().__init__()
-        self.weights = [b.merged() for b in net.blocks]
+def run_merged(weights, x):
+    """Inference form: one 5x5 convolution (zero padding 2) per layer."""
+    last = len(weights) - 1
+    for i, w in enumerate(weights):
+        x = F.conv2d(x, w, padding=2)
+        if i < last:
+            x = F.leaky_relu(x, 0.1)
+    return x
 
-    def forward(self, x):
-        for i, w in enumerate(self.weights):
-            x = F.conv2d(x, w, padding=2)
-            if i + 1 < len(self.weights):
-                x = F.leaky_relu(x, 0.1)
-        return x
 
+# ----------------------------------------------------------------------------
+# The filter and the loss
 
 def fused_filter(logits, c, alb):
-    """out = alb * sum_k alpha_k * box(e_k c) / box(e_k), e_k = exp(I_k - max)."""
-    imp, fus = logits[:, :6], logits[:, 6:]
+    """out(p) = alb(p) * sum_k alpha_k(p) * sum_q e_k(q) c(q) / sum_q e_k(q).
+
+    logits [B,12,H,W]: channels 0..5 importance I_k for k in SIZES, 6..11
+    fusion logits; c [B,3,H,W] demodulated irradiance; alb [B,3,H,W] the
+    remodulation factor a + EPS. q runs over the k x k window around p,
+    out-of-image q excluded: zero padding of both sums (avg_pool2d counting
+    the padding divides numerator and denominator by the same k*k).
+
+    e_k = exp(I_k - m_k) with m_k the maximum of I_k over each image (detached;
+    it cancels exactly). A window whose every weight underflows (its logits
+    all more than ~87 nats under m_k in f32, ~708 in f64) has a zero
+    denominator; it is guarded to give 0 rather than NaN. Run in float64
+    (denoise does) to push that limit out of reach.
+    """
+    imp, fus = logits[:, :6], logits[:, 6:12]
     alpha = torch.softmax(fus, dim=1)
-    out = 0
+    m = imp.detach().amax(dim=(2, 3), keepdim=True)
+    e = torch.exp(imp - m)
+    tiny = torch.finfo(logits.dtype).tiny
+    out = torch.zeros_like(c)
     for i, k in enumerate(SIZES):
-        li = imp[:, i:i + 1]
-        # One shift per image and size (the official code shifts nothing);
-        # a tiny floor keeps an all-underflowed window finite.
-        e = torch.exp(li - li.amax(dim=(2, 3), keepdim=True))
+        ek = e[:, i:i + 1]
         r = k // 2
-        num = F.avg_pool2d(e * c, k, stride=1, padding=r, count_include_pad=True)
-        den = F.avg_pool2d(e, k, stride=1, padding=r, count_include_pad=True)
-        out = out + alpha[:, i:i + 1] * num / (den + 1e-30)
+        num = F.avg_pool2d(ek * c, k, stride=1, padding=r, count_include_pad=True)
+        den = F.avg_pool2d(ek, k, stride=1, padding=r, count_include_pad=True)
+        out = out + alpha[:, i:i + 1] * (num / den.clamp_min(tiny))
     return alb * out
 
 
-def smape(x, r):
-    return (torch.abs(x - r) / (torch.abs(x) + torch.abs(r) + 0.01)).mean()
+def fused_filter_direct(logits, c, alb):
+    """The same filter window by window, each window shifted by its own
+    maximum (float64 numpy loops; small images only: the fixture's check)."""
+    lg = np.asarray(logits, dtype=np.float64)
+    c = np.asarray(c, dtype=np.float64)
+    alb = np.asarray(alb, dtype=np.float64)
+    _, h, w = lg.shape
+    f = lg[6:12] - lg[6:12].max(axis=0)
+    alpha = np.exp(f) / np.exp(f).sum(axis=0)
+    out = np.zeros((3, h, w))
+    for i, k in enumerate(SIZES):
+        r = k // 2
+        for y in range(h):
+            for x in range(w):
+                y0, y1, x0, x1 = max(0, y - r), min(h, y + r + 1), max(0, x - r), min(w, x + r + 1)
+                li = lg[i, y0:y1, x0:x1]
+                e = np.exp(li - li.max())
+                cw = c[:, y0:y1, x0:x1]
+                out[:, y, x] += alpha[i, y, x] * (e * cw).sum(axis=(1, 2)) / e.sum()
+    return alb * out
 
 
-# --- data -------------------------------------------------------------------
-
-def frame_inputs(frame, ta):
-    """(x [10,H,W], c [3,H,W], alb [3,H,W]) as std-host/src/wskp.rs builds them."""
-    t = np.stack([ta['R'], ta['G'], ta['B']])
-    a = np.stack([frame['albedo.R'], frame['albedo.G'], frame['albedo.B']])
-    n = np.stack([frame['normal.X'], frame['normal.Y'], frame['normal.Z']])
-    d = frame['depth.Z']
-    span = d.max() - d.min()
-    dn = (d - d.min()) / span if span > 0 else np.zeros_like(d)
-    x = np.concatenate([np.clip(t, 0, 1) ** (1 / 2.2), a, n * 0.5 + 0.5, dn[None]]).astype(np.float32)
-    alb = (a + EPS).astype(np.float32)
-    return x, (t / alb).astype(np.float32), alb
+def smape(out, ref):
+    return (torch.abs(out - ref) / (torch.abs(out) + torch.abs(ref) + SMAPE_EPS)).mean()
 
 
-def accumulate(seq_dir, out_dir):
-    subprocess.run([mcdenoise_bin(), 'denoise', '--method', 'ta', '--threads', '2', seq_dir, '-o', out_dir],
-                   check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+# ----------------------------------------------------------------------------
+# Inputs
+
+def frame_inputs(t, a, n, d):
+    """Network input x [10,H,W], demodulated irradiance c [3,H,W] and the
+    remodulation factor a + EPS [3,H,W], all float32, from the accumulated
+    radiance t [3,H,W], albedo a [3,H,W], normal n [3,H,W] and depth d [H,W]
+    of one whole frame (the depth range is the frame's)."""
+    t = np.asarray(t, dtype=np.float64)
+    a = np.asarray(a, dtype=np.float64)
+    d = np.asarray(d, dtype=np.float64)
+    lo, hi = d.min(), d.max()
+    dn = (d - lo) / (hi - lo) if hi > lo else np.zeros_like(d)
+    x = np.concatenate([np.clip(t, 0.0, 1.0) ** (1 / 2.2), a, np.asarray(n) * 0.5 + 0.5, dn[None]])
+    alb = a + EPS
+    return x.astype(np.float32), (t / alb).astype(np.float32), alb.astype(np.float32)
 
 
-def load_sequence(seq_dir, tmp):
-    ta_dir = os.path.join(tmp, os.path.basename(os.path.normpath(seq_dir)))
-    accumulate(seq_dir, ta_dir)
-    names = sorted(f for f in os.listdir(seq_dir) if f.endswith('.exr'))
-    out = []
-    for nme in names:
-        fr = exrio.read_exr(os.path.join(seq_dir, nme))
-        ta = exrio.read_exr(os.path.join(ta_dir, nme))
-        x, c, alb = frame_inputs(fr, ta)
-        ref = None
-        rp = os.path.join(seq_dir, 'ref', nme)
-        if os.path.exists(rp):
-            rf = exrio.read_exr(rp)
-            ref = np.stack([rf['R'], rf['G'], rf['B']]).astype(np.float32)
-        noisy = np.stack([fr['R'], fr['G'], fr['B']]).astype(np.float32)
-        out.append((nme, x, c, alb, ref, noisy))
-    return out
+def rgb(ch, prefix=''):
+    return np.stack([ch[prefix + 'R'], ch[prefix + 'G'], ch[prefix + 'B']])
 
 
-def sequence_dirs(d):
-    if any(f.endswith('.exr') for f in os.listdir(d)):
-        return [d]
-    return sorted(os.path.join(d, s) for s in os.listdir(d) if os.path.isdir(os.path.join(d, s)))
+def frame_names(seq_dir):
+    return sorted(f for f in os.listdir(seq_dir) if f.startswith('frame_') and f.endswith('.exr'))
 
 
-# --- weights ----------------------------------------------------------------
-
-def save_weights(net, path, layers, form='branches'):
-    from safetensors.numpy import save_file
-    t = {}
-    for i, b in enumerate(net.blocks):
-        if form == 'branches':
-            for k in (5, 3, 1):
-                t['layers.%d.conv%d.weight' % (i, k)] = getattr(b, 'conv%d' % k).weight.detach().cpu().numpy().astype(np.float32)
-        else:
-            t['layers.%d.weight' % i] = b.merged().cpu().numpy().astype(np.float32)
-    save_file(t, path, metadata={'format': 'mcdenoise-wskp', 'version': '1', 'form': form, 'layers': str(layers)})
-
-
-def load_weights(net, path):
-    from safetensors.numpy import load_file
-    t = load_file(path)
-    with torch.no_grad():
-        for i, b in enumerate(net.blocks):
-            for k in (5, 3, 1):
-                getattr(b, 'conv%d' % k).weight.copy_(torch.from_numpy(t['layers.%d.conv%d.weight' % (i, k)]))
-
-
-# --- commands ---------------------------------------------------------------
-
-def psnr(x, r):
-    d = np.clip(x, 0, 1) ** (1 / 2.2) - np.clip(r, 0, 1) ** (1 / 2.2)
-    return 10 * np.log10(1.0 / max(np.mean(d * d), 1e-20))
+def load_sequence(seq_dir, tmp, need_ref=False):
+    """[(name, x, c, alb, ref or None)] of every frame of one sequence."""
+    ta_dir = os.path.join(tmp, 'ta_%d' % len(os.listdir(tmp)))
+    r = subprocess.run([mcdenoise_bin(), 'denoise', '--method', 'ta', seq_dir, '-o', ta_dir],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        raise SystemExit('mcdenoise denoise --method ta %s failed:\n%s' % (seq_dir, r.stderr))
+    frames = []
+    for name in frame_names(seq_dir):
+        ref_path = os.path.join(seq_dir, 'ref', name)
+        if need_ref and not os.path.exists(ref_path):
+            print('  %s: no reference, skipped' % os.path.join(seq_dir, name))
+            continue
+        ch = exrio.read_exr(os.path.join(seq_dir, name))
+        ta = exrio.read_exr(os.path.join(ta_dir, name))
+        n = np.stack([ch['normal.X'], ch['normal.Y'], ch['normal.Z']])
+        x, c, alb = frame_inputs(rgb(ta), rgb(ch, 'albedo.'), n, ch['depth.Z'])
+        ref = rgb(exrio.read_exr(ref_path)).astype(np.float32) if os.path.exists(ref_path) else None
+        frames.append((name, x, c, alb, ref))
+    return frames
 
 
-def cmd_train(a):
-    torch.manual_seed(a.seed)
-    rng = np.random.default_rng(a.seed)
-    torch.set_num_threads(a.threads)
-    with tempfile.TemporaryDirectory() as tmp:
-        frames = [f for d in sequence_dirs(a.data) for f in load_sequence(d, tmp)]
-        val = [load_sequence(d, tmp) for d in sequence_dirs(a.val)] if a.val else []
-    frames = [f for f in frames if f[4] is not None]
-    net = ImportanceNet(a.layers)
-    opt = torch.optim.Adam(net.parameters(), lr=a.lr)
-    s = a.crop
-    t0, step = time.time(), 0
-    log = []
-    while time.time() - t0 < a.minutes * 60:
-        xs, cs, als, rs = [], [], [], []
-        for _ in range(a.batch):
-            _, x, c, alb, ref, _ = frames[rng.integers(len(frames))]
-            h, w = x.shape[1:]
-            y0, x0, t = rng.integers(h - s + 1), rng.integers(w - s + 1), rng.integers(8)
-            crop = [v[:, y0:y0 + s, x0:x0 + s] for v in (x, c, alb, ref)]
-            if t & 4:
-                crop = [v.transpose(0, 2, 1) for v in crop]
-            if t & 1:
-                crop = [v[:, :, ::-1] for v in crop]
-            if t & 2:
-                crop = [v[:, ::-1, :] for v in crop]
-            for lst, v in zip((xs, cs, als, rs), crop):
-                lst.append(np.ascontiguousarray(v))
-        x, c, alb, ref = (torch.from_numpy(np.stack(v)) for v in (xs, cs, als, rs))
-        out = fused_filter(net(x), c, alb)
-        loss = smape(out, ref)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        step += 1
-        if step % 100 == 0:
-            el = time.time() - t0
-            msg = 'step %d  loss %.4f  %.2f steps/s' % (step, loss.item(), step / el)
-            if val and step % 500 == 0:
-                msg += '  val PSNR %.2f dB' % validate(net, val)
-            print(msg, flush=True)
-            log.append((step, el, loss.item()))
-    save_weights(net, a.output, a.layers)
-    print('trained %d steps in %.1f s; weights %s' % (step, time.time() - t0, a.output))
-    if val:
-        print('validation PSNR %.2f dB' % validate(net, val))
+def sequence_dirs(root):
+    """root itself if it holds frames, else its sub-directories that do."""
+    if frame_names(root):
+        return [root]
+    subs = [os.path.join(root, s) for s in sorted(os.listdir(root))]
+    return [s for s in subs if os.path.isdir(s) and frame_names(s)]
+
+
+# ----------------------------------------------------------------------------
+# Weights files
+
+def write_safetensors(path, tensors, meta):
+    """A safetensors file with its header in a fixed order (metadata, then
+    tensors by name), so the same tensors always give the same bytes (the
+    safetensors package orders the metadata at random). f32, little endian."""
+    import json
+    header = {'__metadata__': dict(sorted(meta.items()))}
+    blobs, offset = [], 0
+    for name in sorted(tensors):
+        arr = np.ascontiguousarray(np.asarray(tensors[name], dtype='<f4'))
+        blob = arr.tobytes()
+        header[name] = {'dtype': 'F32', 'shape': list(arr.shape), 'data_offsets': [offset, offset + len(blob)]}
+        blobs.append(blob)
+        offset += len(blob)
+    text = json.dumps(header, separators=(',', ':')).encode()
+    text += b' ' * (-len(text) % 8)
+    with open(path, 'wb') as f:
+        f.write(len(text).to_bytes(8, 'little'))
+        f.write(text)
+        for blob in blobs:
+            f.write(blob)
+
+
+def save_weights(net, path, form='branches'):
+    """The weights file of the contract: f32 [cout][cin][kh][kw]."""
+    if form == 'branches':
+        tensors = {name: p.detach().cpu().numpy() for name, p in net.state_dict().items()}
+    elif form == 'merged':
+        tensors = {'layers.%d.weight' % i: w.cpu().numpy() for i, w in enumerate(net.merged())}
+    else:
+        raise ValueError(form)
+    meta = {'format': FORMAT, 'version': '1', 'layers': str(net.n_layers), 'form': form}
+    write_safetensors(path, tensors, meta)
+
+
+def read_weights(path):
+    """(metadata, {name: float32 tensor})."""
+    from safetensors import safe_open
+    with safe_open(path, framework='pt') as f:
+        meta = f.metadata() or {}
+        tensors = {k: f.get_tensor(k) for k in f.keys()}
+    if meta.get('format') != FORMAT:
+        raise SystemExit('%s: metadata format %r, expected %r' % (path, meta.get('format'), FORMAT))
+    return meta, tensors
+
+
+def load_branches(path, layers=None, dtype=torch.float32):
+    meta, t = read_weights(path)
+    if meta.get('form') != 'branches':
+        raise SystemExit('%s: form %r, expected branches' % (path, meta.get('form')))
+    layers = layers or int(meta['layers'])
+    if int(meta['layers']) != layers:
+        raise SystemExit('%s holds %s layers, not %d' % (path, meta['layers'], layers))
+    net = ImportanceNet(layers).to(dtype)
+    net.load_state_dict({k: v.to(dtype) for k, v in t.items()}, strict=True)
+    return net
+
+
+def load_inference(path, layers=None, dtype=torch.float32):
+    """Merged 5x5 kernels of either form of file."""
+    meta, t = read_weights(path)
+    n = int(meta['layers'])
+    if layers and layers != n:
+        raise SystemExit('%s holds %d layers, not %d' % (path, n, layers))
+    if meta.get('form') == 'merged':
+        ws = [t['layers.%d.weight' % i].to(dtype) for i in range(n)]
+        for w, (cin, cout) in zip(ws, layer_shapes(n)):
+            assert tuple(w.shape) == (cout, cin, 5, 5), w.shape
+        return ws
+    return load_branches(path, n, dtype).merged()
+
+
+# ----------------------------------------------------------------------------
+# train
+
+def psnr(out, ref):
+    """mcdenoise score's PSNR: on clamp(x, 0, 1)^(1/2.2), peak 1."""
+    a = np.clip(out, 0, 1) ** (1 / 2.2)
+    b = np.clip(ref, 0, 1) ** (1 / 2.2)
+    mse = float(np.mean((a - b) ** 2))
+    return 10 * np.log10(1.0 / max(mse, 1e-20))
 
 
 @torch.no_grad()
-def run_frames(net, seq):
-    m = MergedNet(net)
+def denoise_frames(weights, frames):
+    """Network in f32 (merged form), filter in f64."""
     outs = []
-    for nme, x, c, alb, ref, noisy in seq:
-        o = fused_filter(m(torch.from_numpy(x)[None]), torch.from_numpy(c)[None], torch.from_numpy(alb)[None])
-        outs.append((nme, o[0].numpy(), ref, noisy))
+    for name, x, c, alb, ref in frames:
+        lg = run_merged(weights, torch.from_numpy(x)[None])
+        o = fused_filter(lg.double(), torch.from_numpy(c)[None].double(), torch.from_numpy(alb)[None].double())
+        outs.append((name, o[0].float().numpy(), ref))
     return outs
 
 
 def validate(net, seqs):
-    ps = [psnr(o, r) for seq in seqs for _, o, r, _ in run_frames(net, seq)]
-    return float(np.mean(ps))
+    ws = net.merged()
+    ps = [psnr(o, r) for frames in seqs for _, o, r in denoise_frames(ws, frames) if r is not None]
+    return float(np.mean(ps)) if ps else float('nan')
+
+
+def random_batch(rng, frames, batch, crop):
+    """A batch of random crops, each under one of the 8 flips / 90-degree turns
+    applied alike to every buffer (channel values untouched)."""
+    cols = [[], [], [], []]
+    for _ in range(batch):
+        _, x, c, alb, ref = frames[rng.integers(len(frames))]
+        h, w = x.shape[1:]
+        y0, x0 = rng.integers(h - crop + 1), rng.integers(w - crop + 1)
+        turn = rng.integers(8)
+        for col, v in zip(cols, (x, c, alb, ref)):
+            v = v[:, y0:y0 + crop, x0:x0 + crop]
+            if turn & 1:
+                v = v[:, :, ::-1]
+            if turn & 2:
+                v = v[:, ::-1, :]
+            if turn & 4:
+                v = v.transpose(0, 2, 1)
+            col.append(np.ascontiguousarray(v))
+    return [torch.from_numpy(np.stack(col)) for col in cols]
+
+
+def train_step(net, opt, x, c, alb, ref):
+    """One Adam step. The network runs in f32; the filter and the loss in the
+    dtype of c, alb and ref (f64 in training: no window underflows)."""
+    out = fused_filter(net(x).to(c.dtype), c, alb)
+    loss = smape(out, ref)
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    opt.step()
+    return loss
+
+
+def cmd_train(a):
+    torch.set_num_threads(a.threads)
+    torch.manual_seed(a.seed)
+    rng = np.random.default_rng(a.seed)
+    with tempfile.TemporaryDirectory() as tmp:
+        seqs = sequence_dirs(a.data)
+        if not seqs:
+            raise SystemExit('no sequence under %s' % a.data)
+        frames = []
+        for s in seqs:
+            frames += load_sequence(s, tmp, need_ref=True)
+        val = [load_sequence(s, tmp, need_ref=True) for s in sequence_dirs(a.val)] if a.val else []
+    small = [f[0] for f in frames if min(f[1].shape[1:]) < a.crop]
+    if small:
+        raise SystemExit('frames smaller than the crop %d' % a.crop)
+    print('training WSKP-%d on %d frames of %d sequences (%s); batch %d of %dx%d crops, Adam lr %g, '
+          '%d threads, seed %d, %.1f minutes; network f32, filter and loss f64'
+          % (a.layers, len(frames), len(seqs), a.data, a.batch, a.crop, a.crop, a.lr, a.threads, a.seed, a.minutes),
+          flush=True)
+    net = ImportanceNet(a.layers)
+    opt = torch.optim.Adam(net.parameters(), lr=a.lr)
+    budget = a.minutes * 60.0
+    trained = 0.0  # seconds spent in training steps (validation excluded)
+    step, window = 0, []
+    while trained < budget:
+        t0 = time.perf_counter()
+        x, c, alb, ref = random_batch(rng, frames, a.batch, a.crop)
+        loss = train_step(net, opt, x, c.double(), alb.double(), ref.double())
+        trained += time.perf_counter() - t0
+        step += 1
+        window.append(loss.item())
+        if step % a.print_every == 0:
+            msg = 'step %6d  %7.1f s  loss %.4f  %.2f steps/s' % (step, trained, np.mean(window), step / trained)
+            window = []
+            if val and step % (a.print_every * a.val_every) == 0:
+                msg += '  val PSNR %.2f dB' % validate(net, val)
+            print(msg, flush=True)
+    save_weights(net, a.output, 'branches')
+    print('trained %d steps in %.1f s (%.2f steps/s); weights (branches form) in %s'
+          % (step, trained, step / trained, a.output))
+    if a.merged:
+        save_weights(net, a.merged, 'merged')
+        print('merged form in %s' % a.merged)
+    if val:
+        print('validation PSNR %.2f dB' % validate(net, val))
+
+
+# ----------------------------------------------------------------------------
+# denoise
+
+def write_rgb(path, img):
+    import OpenEXR
+    chans = {name: np.ascontiguousarray(img[i], dtype=np.float32) for i, name in enumerate('RGB')}
+    header = {'compression': OpenEXR.ZIP_COMPRESSION, 'type': OpenEXR.scanlineimage}
+    with OpenEXR.File(header, chans) as f:
+        f.write(path)
 
 
 def cmd_denoise(a):
     torch.set_num_threads(a.threads)
-    net = ImportanceNet(a.layers)
-    load_weights(net, a.weights)
-    os.makedirs(a.output, exist_ok=True)
+    weights = load_inference(a.weights, a.layers)
     with tempfile.TemporaryDirectory() as tmp:
-        seq = load_sequence(a.input, tmp)
-    for nme, o, _, _ in run_frames(net, seq):
-        write_rgb(os.path.join(a.output, nme), o)
-    print('wrote %d frames to %s' % (len(seq), a.output))
+        frames = load_sequence(a.input, tmp)
+    os.makedirs(a.output, exist_ok=True)
+    ps = []
+    for name, o, ref in denoise_frames(weights, frames):
+        write_rgb(os.path.join(a.output, name), o)
+        if ref is not None:
+            ps.append(psnr(o, ref))
+    msg = 'wrote %d frames to %s' % (len(frames), a.output)
+    if ps:
+        msg += ' (mean PSNR %.2f dB)' % np.mean(ps)
+    print(msg)
 
 
-def write_rgb(path, img):
-    import OpenEXR
-    ch = {'R': img[0].astype(np.float32), 'G': img[1].astype(np.float32), 'B': img[2].astype(np.float32)}
-    hdr = {'compression': OpenEXR.ZIP_COMPRESSION, 'type': OpenEXR.scanlineimage}
-    with OpenEXR.File(hdr, ch) as f:
-        f.write(path)
+# ----------------------------------------------------------------------------
+# time
 
-
-def median_ms(fn, reps):
-    for _ in range(3):
+def median_ms(fn, reps, warmup=3):
+    for _ in range(warmup):
         fn()
-    t = []
+    ts = []
     for _ in range(reps):
-        s = time.perf_counter()
+        t0 = time.perf_counter()
         fn()
-        t.append((time.perf_counter() - s) * 1e3)
-    t.sort()
-    return t[len(t) // 2]
+        ts.append((time.perf_counter() - t0) * 1e3)
+    return statistics.median(ts), min(ts)
+
+
+def cpu_model():
+    out = subprocess.run(['lscpu'], capture_output=True, text=True).stdout
+    for line in out.splitlines():
+        if line.startswith('Model name'):
+            return line.split(':', 1)[1].strip()
+    return '?'
 
 
 def cmd_time(a):
     torch.set_num_threads(a.threads)
     torch.manual_seed(0)
-    cpu = subprocess.run(['lscpu'], capture_output=True, text=True).stdout
-    model = next((l.split(':', 1)[1].strip() for l in cpu.splitlines() if l.startswith('Model name')), '?')
-    print('CPU %s; torch %s, %d threads' % (model, torch.__version__, torch.get_num_threads()))
-    res = {}
-    for layers in (6, 3):
-        net = ImportanceNet(layers)
+    print('CPU: %s; %d logical CPUs; load average %s' % (cpu_model(), os.cpu_count(),
+                                                       ' '.join('%.2f' % v for v in os.getloadavg())))
+    print('torch %s, intra-op threads %d, inter-op threads %d, mkldnn %s, OMP_WAIT_POLICY=%s'
+          % (torch.__version__, torch.get_num_threads(), torch.get_num_interop_threads(),
+             torch.backends.mkldnn.is_available(), os.environ.get('OMP_WAIT_POLICY')))
+    # (a) one eager training step of WSKP-6, batch 8 of 128x128 crops.
+    b, s = 8, 128
+    g = torch.Generator().manual_seed(1)
+    x = torch.rand(b, 10, s, s, generator=g)
+    alb = torch.rand(b, 3, s, s, generator=g) + EPS
+    c = torch.rand(b, 3, s, s, generator=g) * 2
+    ref = torch.rand(b, 3, s, s, generator=g) * 2
+    for dt in (torch.float64, torch.float32):
+        net = ImportanceNet(6)
         opt = torch.optim.Adam(net.parameters(), lr=1e-3)
-        b, s = 8, 128
-        x, c, alb, ref = torch.rand(b, 10, s, s), torch.rand(b, 3, s, s) * 4, torch.rand(b, 3, s, s) + 0.05, torch.rand(b, 3, s, s)
+        cd, ad, rd = c.to(dt), alb.to(dt), ref.to(dt)
+        med, best = median_ms(lambda: train_step(net, opt, x, cd, ad, rd), a.reps)
+        print('train step WSKP-6, batch 8 of 128x128 (forward, SMAPE, backward, Adam; network f32, filter %s%s): '
+              'median %.1f ms (min %.1f) of %d'
+              % (str(dt)[6:], ' as `train` runs it' if dt == torch.float64 else '', med, best, a.reps))
+    # (b) inference at 1280x720: merged networks, filter, and both together.
+    h, w = 720, 1280
+    x = torch.rand(1, 10, h, w, generator=g)
+    c = torch.rand(1, 3, h, w, generator=g) * 2
+    alb = torch.rand(1, 3, h, w, generator=g) + EPS
+    with torch.no_grad():
+        for layers in (6, 3):
+            ws = ImportanceNet(layers).merged()
+            med, best = median_ms(lambda: run_merged(ws, x), a.infer_reps)
+            print('inference 1280x720, WSKP-%d merged network: median %.1f ms (min %.1f) of %d'
+                  % (layers, med, best, a.infer_reps))
+            lg = run_merged(ws, x)
+            if layers == 6:
+                med, best = median_ms(lambda: fused_filter(lg, c, alb), a.infer_reps)
+                print('inference 1280x720, fused filter (6 sizes, f32): median %.1f ms (min %.1f) of %d'
+                      % (med, best, a.infer_reps))
+            med, best = median_ms(lambda: fused_filter(run_merged(ws, x), c, alb), a.infer_reps)
+            print('inference 1280x720, WSKP-%d network + filter: median %.1f ms (min %.1f) of %d'
+                  % (layers, med, best, a.infer_reps))
+    print('load average after: %s' % ' '.join('%.2f' % v for v in os.getloadavg()))
 
-        def step():
-            loss = smape(fused_filter(net(x), c, alb), ref)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-        ms = median_ms(step, a.reps)
-        res['train_step_wskp%d_b8_128' % layers] = ms
-        print('training step WSKP-%d, batch 8 of 128x128: %.1f ms' % (layers, ms))
-        m = MergedNet(net)
-        xi, ci, ai = torch.rand(1, 10, 720, 1280), torch.rand(1, 3, 720, 1280), torch.rand(1, 3, 720, 1280) + 0.05
-        with torch.no_grad():
-            ms_net = median_ms(lambda: m(xi), max(3, a.reps // 4))
-            lg = m(xi)
-            ms_filt = median_ms(lambda: fused_filter(lg, ci, ai), max(3, a.reps // 4))
-        res['infer_net_wskp%d_1280x720' % layers] = ms_net
-        res['infer_filter_1280x720'] = ms_filt
-        print('inference 1280x720 WSKP-%d: network %.1f ms, fused filter %.1f ms, total %.1f ms' % (layers, ms_net, ms_filt, ms_net + ms_filt))
-    if a.json:
-        with open(a.json, 'w') as f:
-            json.dump({'cpu': model, 'torch': torch.__version__, 'threads': a.threads, 'ms': res}, f, indent=1)
+
+# ----------------------------------------------------------------------------
+# fixture
+
+def fixture_frame(h, w, rng):
+    """A plausible small frame: two surfaces meeting at a slanted edge, with
+    textures, a shadow, 1-spp-like accumulated radiance and a few fireflies."""
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    wall = (xx + 0.6 * yy) > 0.55 * w + 3
+    # albedo: a checker on the floor, a smooth colour on the wall, one black pixel.
+    a = np.where(wall, np.array([0.7, 0.55, 0.3])[:, None, None],
+                 np.where(((xx // 3 + yy // 3) % 2)[None] > 0, 0.8, 0.15) * np.ones((3, 1, 1)))
+    a = np.clip(a + rng.uniform(-0.05, 0.05, a.shape), 0.0, 1.0)
+    a[:, h // 2, w // 3] = 0.0
+    # normals: two tilted planes, unit length, with some bump.
+    n = np.where(wall, np.array([-0.8, 0.1, 0.59])[:, None, None], np.array([0.05, 0.99, 0.1])[:, None, None])
+    n = n + rng.normal(0, 0.05, n.shape)
+    n /= np.linalg.norm(n, axis=0, keepdims=True)
+    d = np.where(wall, 4.0 + 0.05 * xx, 2.0 + 0.2 * yy) + rng.uniform(0, 0.01, (h, w))
+    # irradiance: a soft shadow, noise of ~ one accumulated sample, fireflies.
+    irr = 1.5 * (1.0 - 0.7 * np.exp(-((xx - 5) ** 2 + (yy - 8) ** 2) / 8.0))
+    irr = irr[None] * rng.gamma(2.0, 0.5, (3, h, w))
+    irr[:, 2, 12] *= 40.0
+    irr[1, 9, 4] *= 25.0
+    t = a * irr
+    return t, a, n, d
+
+
+def scale_last_layer(net, x, span=10.0):
+    """Scale the last layer (no activation after it, no identity) so the
+    largest |logit| on x is `span`."""
+    with torch.no_grad():
+        peak = net(x).abs().max().item()
+        last = net.layers[-1]
+        for conv in (last.conv5, last.conv3, last.conv1):
+            conv.weight.mul_(span / peak)
 
 
 def cmd_fixture(a):
-    """A small deterministic case for the Rust test: weights, one frame's
-    tensors and the float64 outputs of the network and the filter."""
-    from safetensors.numpy import save_file
     os.makedirs(a.output, exist_ok=True)
-    torch.manual_seed(1234)
     h, w = 13, 17
-    g = torch.Generator().manual_seed(99)
-    x = torch.rand(1, 10, h, w, generator=g, dtype=torch.float64)
-    c = torch.rand(1, 3, h, w, generator=g, dtype=torch.float64) * 4
-    alb = torch.rand(1, 3, h, w, generator=g, dtype=torch.float64) * 0.9 + 0.1
-    t = {'x': x[0].float().numpy(), 'c': c[0].float().numpy(), 'albedo': alb[0].float().numpy()}
-    for layers in (3, 6):
-        net = ImportanceNet(layers)
+    rng = np.random.default_rng(2024)
+    t, alb_raw, n, d = fixture_frame(h, w, rng)
+    x, c, alb = frame_inputs(t, alb_raw, n, d)
+    case = {
+        'x': x, 'c': c, 'a': alb_raw.astype(np.float32), 'albedo': alb,
+        't': t.astype(np.float32), 'normal': n.astype(np.float32), 'depth': d[None].astype(np.float32),
+    }
+    # The f64 computations below start from these f32 values as stored.
+    x64 = torch.from_numpy(x).double()[None]
+    c64 = torch.from_numpy(c).double()[None]
+    alb64 = torch.from_numpy(alb).double()[None]
+    for layers, seed in ((3, 3), (6, 6)):
+        torch.manual_seed(seed)
+        net = ImportanceNet(layers).double()
+        scale_last_layer(net, x64)
+        branches = os.path.join(a.output, 'wskp%d.safetensors' % layers)
+        merged = os.path.join(a.output, 'wskp%d_merged.safetensors' % layers)
+        save_weights(net, branches, 'branches')
+        save_weights(net, merged, 'merged')
+        # Expected values: the stored f32 branch weights, in float64.
+        net64 = load_branches(branches, layers, torch.float64)
         with torch.no_grad():
-            # Scaled so the logits span several nats (windows far from uniform).
-            for p in net.parameters():
-                p.mul_(2.2 if layers == 3 else 1.6)
-        path = os.path.join(a.output, 'wskp%d.safetensors' % layers)
-        save_weights(net, path, layers)
-        save_weights(net, os.path.join(a.output, 'wskp%d_merged.safetensors' % layers), layers, form='merged')
-        # f64 from the f32 weights and inputs as stored.
-        net64 = ImportanceNet(layers).double()
-        load_weights(net64, path)
-        xin = torch.from_numpy(t['x']).double()[None]
-        with torch.no_grad():
-            lg = net64(xin)
-            lm = MergedNet(net64)(xin)
-            assert torch.allclose(lg, lm, atol=1e-10), 'merged and unmerged nets differ'
-            out = fused_filter(lg, torch.from_numpy(t['c']).double()[None], torch.from_numpy(t['albedo']).double()[None])
-        t['logits%d' % layers] = lg[0].float().numpy()
-        t['out%d' % layers] = out[0].float().numpy()
-        print('WSKP-%d logits span %.2f .. %.2f' % (layers, lg.min().item(), lg.max().item()))
-    save_file(t, os.path.join(a.output, 'case.safetensors'), metadata={'made_by': 'tools/torch_wskp.py fixture', 'torch': torch.__version__})
-    print('wrote the fixture to %s' % a.output)
+            lg = net64(x64)
+            out = fused_filter(lg, c64, alb64)
+            # Checks: the merged form (merged in f64, and the merged file) and
+            # the direct per-window filter give the same results.
+            lg_m = run_merged(net64.merged(), x64)
+            lg_f = run_merged(load_inference(merged, layers, torch.float64), x64)
+            out_m = fused_filter(lg_m, c64, alb64)
+        peak = lg.abs().max().item()
+        e1 = (lg - lg_m).abs().max().item()
+        e2 = (lg - lg_f).abs().max().item()
+        e3 = (out - out_m).abs().max().item()
+        direct = fused_filter_direct(lg[0].numpy(), c64[0].numpy(), alb64[0].numpy())
+        e4 = float(np.abs(direct - out[0].numpy()).max())
+        print('WSKP-%d: logits %.2f .. %.2f (importance %.2f .. %.2f, fusion %.2f .. %.2f); output %.3f .. %.3f'
+              % (layers, lg.min().item(), lg.max().item(), lg[:, :6].min().item(), lg[:, :6].max().item(),
+                 lg[:, 6:].min().item(), lg[:, 6:].max().item(), out.min().item(), out.max().item()))
+        print('  max |difference|: merged (f64) logits %.1e, merged file (f32 weights) logits %.1e, '
+              'merged filter output %.1e, direct per-window filter %.1e' % (e1, e2, e3, e4))
+        assert e1 <= 1e-12 * peak, 'merged and unmerged networks differ'
+        assert e2 <= 1e-5 * peak, 'the merged file differs from the branches file'
+        assert e3 <= 1e-10 * (1 + out.abs().max().item()), 'merged and unmerged outputs differ'
+        assert e4 <= 1e-10 * (1 + out.abs().max().item()), 'box-sum filter and direct filter differ'
+        case['logits%d' % layers] = lg[0].float().numpy()
+        case['out%d' % layers] = out[0].float().numpy()
+    meta = {'made_by': 'tools/torch_wskp.py fixture -o tests/fixtures/wskp_torch', 'torch': torch.__version__,
+            'numpy': np.__version__, 'eps': str(EPS), 'sizes': ','.join(map(str, SIZES))}
+    write_safetensors(os.path.join(a.output, 'case.safetensors'), case, meta)
+    print('wrote %s' % a.output)
 
+
+# ----------------------------------------------------------------------------
 
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest='cmd', required=True)
-    t = sub.add_parser('train')
+    t = sub.add_parser('train', help='train on every sequence under --data')
     t.add_argument('--data', required=True)
     t.add_argument('--val')
-    t.add_argument('--minutes', type=float, default=20)
-    t.add_argument('--layers', type=int, default=6)
+    t.add_argument('--minutes', type=float, required=True, help='training time (validation excluded)')
+    t.add_argument('--threads', type=int, default=2)
     t.add_argument('--batch', type=int, default=8)
     t.add_argument('--crop', type=int, default=64)
+    t.add_argument('--layers', type=int, default=6, choices=[3, 6])
     t.add_argument('--lr', type=float, default=1e-3)
-    t.add_argument('--threads', type=int, default=2)
     t.add_argument('--seed', type=int, default=1)
+    t.add_argument('--print-every', type=int, default=100)
+    t.add_argument('--val-every', type=int, default=10, help='validate every N prints')
+    t.add_argument('--merged', help='also write the merged form here')
     t.add_argument('-o', '--output', required=True)
-    d = sub.add_parser('denoise')
+    d = sub.add_parser('denoise', help='denoise one sequence directory')
     d.add_argument('--weights', required=True)
-    d.add_argument('--layers', type=int, default=6)
+    d.add_argument('--layers', type=int, choices=[3, 6])
     d.add_argument('--threads', type=int, default=2)
     d.add_argument('input')
     d.add_argument('-o', '--output', required=True)
-    m = sub.add_parser('time')
+    m = sub.add_parser('time', help='training-step and 1280x720 inference times')
     m.add_argument('--threads', type=int, default=2)
     m.add_argument('--reps', type=int, default=20)
-    m.add_argument('--json')
-    f = sub.add_parser('fixture')
+    m.add_argument('--infer-reps', type=int, default=10)
+    f = sub.add_parser('fixture', help='write the Rust test fixture')
     f.add_argument('-o', '--output', required=True)
     a = p.parse_args()
     {'train': cmd_train, 'denoise': cmd_denoise, 'time': cmd_time, 'fixture': cmd_fixture}[a.cmd](a)
