@@ -129,7 +129,8 @@ def fused_filter(logits, c, alb):
     fusion logits; c [B,3,H,W] demodulated irradiance; alb [B,3,H,W] the
     remodulation factor a + EPS. q runs over the k x k window around p,
     out-of-image q excluded: zero padding of both sums (avg_pool2d counting
-    the padding divides numerator and denominator by the same k*k).
+    the padding divides numerator and denominator by the same k*k). Since
+    e_k depends on q only, both sums are box filters (separable).
 
     e_k = exp(I_k - m_k) with m_k the maximum of I_k over each image (detached;
     it cancels exactly). A window whose every weight underflows (its logits
@@ -146,9 +147,12 @@ def fused_filter(logits, c, alb):
     for i, k in enumerate(SIZES):
         ek = e[:, i:i + 1]
         r = k // 2
-        num = F.avg_pool2d(ek * c, k, stride=1, padding=r, count_include_pad=True)
-        den = F.avg_pool2d(ek, k, stride=1, padding=r, count_include_pad=True)
-        out = out + alpha[:, i:i + 1] * (num / den.clamp_min(tiny))
+        # numerator (3 channels) and denominator together; the k x k box
+        # as a k x 1 then a 1 x k box (both zero-padded: exact).
+        s = torch.cat([ek * c, ek], 1)
+        s = F.avg_pool2d(s, (k, 1), stride=1, padding=(r, 0), count_include_pad=True)
+        s = F.avg_pool2d(s, (1, k), stride=1, padding=(0, r), count_include_pad=True)
+        out = out + alpha[:, i:i + 1] * (s[:, :3] / s[:, 3:].clamp_min(tiny))
     return alb * out
 
 
