@@ -9,6 +9,7 @@ safetensors layout as the Rust side.
     torch_wskp.py train --data DIR [--val DIR] --minutes M -o W.safetensors
                         [--threads 2 --batch 8 --crop 64 --layers 6 --seed S]
     torch_wskp.py denoise --weights W [--layers L] IN_DIR -o OUT_DIR
+    torch_wskp.py evaluate --weights W --data DIR -o OUT   (scores per sequence)
     torch_wskp.py time [--threads 2]
     torch_wskp.py fixture -o tests/fixtures/wskp_torch
 
@@ -208,9 +209,10 @@ def frame_names(seq_dir):
     return sorted(f for f in os.listdir(seq_dir) if f.startswith('frame_') and f.endswith('.exr'))
 
 
-def load_sequence(seq_dir, tmp, need_ref=False):
-    """[(name, x, c, alb, ref or None)] of every frame of one sequence."""
-    ta_dir = os.path.join(tmp, 'ta_%d' % len(os.listdir(tmp)))
+def load_sequence(seq_dir, tmp, need_ref=False, ta_dir=None):
+    """[(name, x, c, alb, ref or None)] of every frame of one sequence (the
+    accumulated radiance written to ta_dir, default a new one under tmp)."""
+    ta_dir = ta_dir or os.path.join(tmp, 'ta_%d' % len(os.listdir(tmp)))
     r = subprocess.run([mcdenoise_bin(), 'denoise', '--method', 'ta', seq_dir, '-o', ta_dir],
                        capture_output=True, text=True)
     if r.returncode != 0:
@@ -448,6 +450,44 @@ def cmd_denoise(a):
 
 
 # ----------------------------------------------------------------------------
+# evaluate
+
+def score(ref_dir, out_dir):
+    """mcdenoise score's mean PSNR and SSIM of out_dir against ref_dir."""
+    r = subprocess.run([mcdenoise_bin(), 'score', '--reference', ref_dir, out_dir, '--json'],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        raise SystemExit('mcdenoise score %s failed:\n%s' % (out_dir, r.stderr))
+    import json
+    mean = json.loads(r.stdout)['mean']
+    return mean['psnr'], mean['ssim']
+
+
+def cmd_evaluate(a):
+    """Denoise every sequence under --data into OUT/wskp/SEQ (TA into
+    OUT/ta/SEQ) and score the 1-spp input, TA and WSKP against SEQ/ref."""
+    torch.set_num_threads(a.threads)
+    weights = load_inference(a.weights, a.layers)
+    print('| sequence | frames | input PSNR / SSIM | TA PSNR / SSIM | WSKP PSNR / SSIM | WSKP gain over input |')
+    print('| --- | --- | --- | --- | --- | --- |')
+    gains = []
+    for seq in sequence_dirs(a.data):
+        name = os.path.basename(os.path.normpath(seq))
+        ta_dir = os.path.join(a.output, 'ta', name)
+        out_dir = os.path.join(a.output, 'wskp', name)
+        os.makedirs(out_dir, exist_ok=True)
+        frames = load_sequence(seq, None, ta_dir=ta_dir)
+        for fname, o, _ in denoise_frames(weights, frames):
+            write_rgb(os.path.join(out_dir, fname), o)
+        ref = os.path.join(seq, 'ref')
+        (pi, si), (pt, st), (pw, sw) = score(ref, seq), score(ref, ta_dir), score(ref, out_dir)
+        gains.append(pw - pi)
+        print('| %s | %d | %.2f dB / %.4f | %.2f dB / %.4f | %.2f dB / %.4f | %+.2f dB |'
+              % (name, len(frames), pi, si, pt, st, pw, sw, pw - pi), flush=True)
+    print('mean gain %+.2f dB over %d sequences' % (np.mean(gains), len(gains)))
+
+
+# ----------------------------------------------------------------------------
 # time
 
 def median_ms(fn, reps, warmup=3):
@@ -631,6 +671,12 @@ def main():
     d.add_argument('--threads', type=int, default=2)
     d.add_argument('input')
     d.add_argument('-o', '--output', required=True)
+    e = sub.add_parser('evaluate', help='denoise and score every sequence under --data')
+    e.add_argument('--weights', required=True)
+    e.add_argument('--layers', type=int, choices=[3, 6])
+    e.add_argument('--threads', type=int, default=2)
+    e.add_argument('--data', required=True)
+    e.add_argument('-o', '--output', required=True, help='outputs go to OUT/ta/SEQ and OUT/wskp/SEQ')
     m = sub.add_parser('time', help='training-step and 1280x720 inference times')
     m.add_argument('--threads', type=int, default=2)
     m.add_argument('--reps', type=int, default=20)
@@ -638,7 +684,8 @@ def main():
     f = sub.add_parser('fixture', help='write the Rust test fixture')
     f.add_argument('-o', '--output', required=True)
     a = p.parse_args()
-    {'train': cmd_train, 'denoise': cmd_denoise, 'time': cmd_time, 'fixture': cmd_fixture}[a.cmd](a)
+    {'train': cmd_train, 'denoise': cmd_denoise, 'evaluate': cmd_evaluate, 'time': cmd_time,
+     'fixture': cmd_fixture}[a.cmd](a)
 
 
 if __name__ == '__main__':
