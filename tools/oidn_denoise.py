@@ -140,6 +140,7 @@ def cmd_time(a):
     for _ in range(3):
         den.run()
     ts = []
+    c0 = time.process_time()
     for _ in range(a.reps):
         t0 = time.perf_counter()
         den.run()
@@ -151,7 +152,9 @@ def cmd_time(a):
     print('CPU %s, %d logical CPUs, OIDN numThreads %d; load average before %s, after %s'
           % (cpu_model(), os.cpu_count(), den.threads, ' '.join('%.2f' % v for v in load0),
              ' '.join('%.2f' % v for v in os.getloadavg())))
-    print('median %.1f ms, min %.1f ms, max %.1f ms of %d runs' % (statistics.median(ts), min(ts), max(ts), a.reps))
+    cpu = (time.process_time() - c0) * 1e3 / a.reps
+    print('median %.1f ms, min %.1f ms, max %.1f ms of %d runs; process CPU time %.0f ms/run (all threads)'
+          % (statistics.median(ts), min(ts), max(ts), a.reps, cpu))
     den.close()
 
 

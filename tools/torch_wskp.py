@@ -491,13 +491,17 @@ def cmd_evaluate(a):
 # time
 
 def median_ms(fn, reps, warmup=3):
+    """(median wall ms, min wall ms) of reps calls after warmup calls; the
+    process CPU time per call (all threads) is kept in median_ms.cpu."""
     for _ in range(warmup):
         fn()
     ts = []
+    c0 = time.process_time()
     for _ in range(reps):
         t0 = time.perf_counter()
         fn()
         ts.append((time.perf_counter() - t0) * 1e3)
+    median_ms.cpu = (time.process_time() - c0) * 1e3 / reps
     return statistics.median(ts), min(ts)
 
 
@@ -530,8 +534,8 @@ def cmd_time(a):
         cd, ad, rd = c.to(dt), alb.to(dt), ref.to(dt)
         med, best = median_ms(lambda: train_step(net, opt, x, cd, ad, rd), a.reps)
         print('train step WSKP-6, batch 8 of 128x128 (forward, SMAPE, backward, Adam; network f32, filter %s%s): '
-              'median %.1f ms (min %.1f) of %d'
-              % (str(dt)[6:], ' as `train` runs it' if dt == torch.float64 else '', med, best, a.reps))
+              'median %.1f ms (min %.1f) of %d; CPU %.0f ms/run'
+              % (str(dt)[6:], ' as `train` runs it' if dt == torch.float64 else '', med, best, a.reps, median_ms.cpu))
     # (b) inference at 1280x720: merged networks, filter, and both together.
     h, w = 720, 1280
     x = torch.rand(1, 10, h, w, generator=g)
@@ -541,16 +545,24 @@ def cmd_time(a):
         for layers in (6, 3):
             ws = ImportanceNet(layers).merged()
             med, best = median_ms(lambda: run_merged(ws, x), a.infer_reps)
-            print('inference 1280x720, WSKP-%d merged network: median %.1f ms (min %.1f) of %d'
-                  % (layers, med, best, a.infer_reps))
+            print('inference 1280x720, WSKP-%d merged network: median %.1f ms (min %.1f) of %d; CPU %.0f ms/run'
+                  % (layers, med, best, a.infer_reps, median_ms.cpu))
+            cl = torch.channels_last
+            xl, wl = x.contiguous(memory_format=cl), [v.contiguous(memory_format=cl) for v in ws]
+            med, best = median_ms(lambda: run_merged(wl, xl), a.infer_reps)
+            print('inference 1280x720, WSKP-%d merged network, channels-last tensors: median %.1f ms (min %.1f) of %d; CPU %.0f ms/run'
+                  % (layers, med, best, a.infer_reps, median_ms.cpu))
             lg = run_merged(ws, x)
             if layers == 6:
                 med, best = median_ms(lambda: fused_filter(lg, c, alb), a.infer_reps)
-                print('inference 1280x720, fused filter (6 sizes, f32): median %.1f ms (min %.1f) of %d'
-                      % (med, best, a.infer_reps))
+                print('inference 1280x720, fused filter (6 sizes, f32): median %.1f ms (min %.1f) of %d; CPU %.0f ms/run'
+                      % (med, best, a.infer_reps, median_ms.cpu))
             med, best = median_ms(lambda: fused_filter(run_merged(ws, x), c, alb), a.infer_reps)
-            print('inference 1280x720, WSKP-%d network + filter: median %.1f ms (min %.1f) of %d'
-                  % (layers, med, best, a.infer_reps))
+            print('inference 1280x720, WSKP-%d network + filter: median %.1f ms (min %.1f) of %d; CPU %.0f ms/run'
+                  % (layers, med, best, a.infer_reps, median_ms.cpu))
+            med, best = median_ms(lambda: fused_filter(run_merged(wl, xl).contiguous(), c, alb), a.infer_reps)
+            print('inference 1280x720, WSKP-%d network (channels-last) + filter: median %.1f ms (min %.1f) of %d; CPU %.0f ms/run'
+                  % (layers, med, best, a.infer_reps, median_ms.cpu))
     print('load average after: %s' % ' '.join('%.2f' % v for v in os.getloadavg()))
 
 
