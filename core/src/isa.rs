@@ -20,7 +20,7 @@
 /// | importance / fused filter (f32, f16): direct, separable | yes | AVX2 kernel |
 /// | importance / fused filter (f32, f16): box-sum | yes | yes |
 /// | importance kernels, channel softmax (f32, f16) | yes | AVX2 kernel |
-/// | convolution 1x1 / 3x3 / 5x5 (f32, f16, fixed) | yes | yes (fixed: VNNI when present) |
+/// | convolution 1x1 / 3x3 / 5x5 (f32, f16, fixed) | yes | yes (fixed: VNNI when present; over 400 taps or under 36 columns, the AVX2 kernel) |
 /// | average / max pool, nearest upsample, scale compositor (f32, f16) | yes | AVX2 kernel |
 /// | tone maps, (de)modulation (f32, f16) | yes | AVX2 kernel |
 /// | à-trous step (f32, f16) | yes | AVX2 kernel |

@@ -28,7 +28,7 @@
 //!   correction scales with it;
 //! - loss: SMAPE on linear HDR (the paper's, eps 0.01 as WSKP).
 
-use mcdenoise_core::conv::Activation;
+use mcdenoise_core::conv::{self as cconv, Activation, Conv2d};
 use mcdenoise_core::pool::{self, grad as pgrad, Reduce};
 use mcdenoise_core::softmax::{self, grad as sgrad};
 use mcdenoise_core::tonemap::{self, Map};
@@ -443,8 +443,33 @@ pub struct Afn<P: HostPrecision> {
     refine: bool,
     variant: Variant,
     ta: TemporalAccumulation<P>,
-    infer: Option<(Inference<P>, Inference<P>)>,
+    infer: Option<Infer<P>>,
     bufs: Option<Vec<Vec<f32>>>,
+}
+
+/// The networks ready to run in `P`: the kernel predictor without its
+/// full-scale head, the head (1x1, 16 -> 50) as weights in `P`, the
+/// refinement.
+struct Infer<P: HostPrecision> {
+    body: Inference<P>,
+    head_w: Vec<P::Store>,
+    head_b: Vec<P::Store>,
+    head_frac: i8,
+    refine: Inference<P>,
+}
+
+/// Rows per band of the streamed full-scale head (even, so the compositor's
+/// 2x2 cells stay inside a band).
+pub const STREAM_ROWS: usize = 16;
+
+/// The kernel predictor without its last layer (the full-scale 1x1 head),
+/// and that layer's parameter offset.
+fn body_net(kn: &Net) -> Result<(Net, usize)> {
+    let mut layers = kn.desc.layers.clone();
+    layers.pop();
+    let body = Net::new(NetDesc { cin: kn.desc.cin, layers })?;
+    let last = kn.convs.last().expect("the head is a conv");
+    Ok((body, last.offset))
 }
 
 /// The tensor names of the two networks in one weights file: the kernel
@@ -552,64 +577,73 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
         let variant = self.variant;
         t.time("network inputs", || inputs(&ctx.pool, isa, variant, f, &ta, x, c1, ct, alb))?;
         if self.infer.is_none() {
-            let (kr, rr) = if P::NAME == "fixed" {
+            let (body, head_at) = body_net(&self.kernel_net)?;
+            let last = *self.kernel_net.convs.last().expect("the head is a conv");
+            let (bp, hp) = self.params.0.split_at(head_at);
+            let (hw, hb) = hp.split_at(last.spec.cout * last.cin);
+            let (br, rr) = if P::NAME == "fixed" {
                 // The formats from an f32 run on the first frame.
-                let mut k32 = Inference::<F32>::new(&self.kernel_net, &self.params.0, None, None)?;
-                let kr = k32.ranges(ctx, Planes::<f32>::from_vec(CIN, w, h, x.clone()))?;
+                let mut k32 = Inference::<F32>::new(&body, bp, None, None)?;
+                let br = k32.ranges(ctx, Planes::<f32>::from_vec(CIN, w, h, x.clone()))?;
                 let mut r32 = Inference::<F32>::new(&self.refine_net, &self.params.1, None, None)?;
                 let mut rin = vec![0.0f32; RIN * n];
                 rin[3 * n..].copy_from_slice(&x[6 * n..]);
                 for (d, &tv) in rin[..3 * n].iter_mut().zip(ct.iter()) {
                     *d = tv.max(0.0).ln_1p();
                 }
-                (Some(kr), Some(r32.ranges(ctx, Planes::<f32>::from_vec(RIN, w, h, rin))?))
+                (Some(br), Some(r32.ranges(ctx, Planes::<f32>::from_vec(RIN, w, h, rin))?))
             } else {
                 (None, None)
             };
-            self.infer = Some((
-                Inference::<P>::new(
-                    &self.kernel_net,
-                    &self.params.0,
-                    kr.as_deref(),
-                    Some(mcdenoise_core::fixed::LOGIT_FRAC),
-                )?,
-                Inference::<P>::new(&self.refine_net, &self.params.1, rr.as_deref(), None)?,
-            ));
+            // The head's weights: as many fractional bits as each output's
+            // bit budget allows (fixed point); its output in the logit format.
+            let head_frac = if P::NAME == "fixed" {
+                let maxsum = hw.chunks(last.cin).map(|c| c.iter().map(|v| v.abs()).sum::<f32>()).fold(0.0, f32::max);
+                ((65535.0 / maxsum.max(1e-6)).log2().floor() as i32).clamp(0, 14) as i8
+            } else {
+                0
+            };
+            let logit_frac = if P::NAME == "fixed" { mcdenoise_core::fixed::LOGIT_FRAC } else { 0 };
+            let mut head_w = vec![P::Store::default(); hw.len()];
+            P::encode(hw, &mut head_w, head_frac);
+            let mut head_b = vec![P::Store::default(); hb.len()];
+            P::encode(hb, &mut head_b, logit_frac);
+            self.infer = Some(Infer {
+                body: Inference::<P>::new(&body, bp, br.as_deref(), None)?,
+                head_w,
+                head_b,
+                head_frac,
+                refine: Inference::<P>::new(&self.refine_net, &self.params.1, rr.as_deref(), None)?,
+            });
         }
-        let (kinf, rinf) = self.infer.as_mut().expect("just built");
+        let inf = self.infer.as_mut().expect("just built");
         let xin = t.time("encode", || {
-            let mut p = Planes::<P::Store>::new(CIN, w, h).with_frac(kinf.input_frac());
+            let mut p = Planes::<P::Store>::new(CIN, w, h).with_frac(inf.body.input_frac());
             P::encode(x, &mut p.data, p.frac);
             p
         });
-        t.time("kernel predictor", || kinf.run(ctx, xin))?;
-        let (l1, lt) = (kinf.output(0).view(), kinf.output(1).view());
-        // Kernels (softmax over the 49 taps) and the fusion weight.
+        t.time("kernel predictor", || inf.body.run(ctx, xin))?;
+        let (l1, feats) = (inf.body.output(0).view(), inf.body.output(1).view());
+        // The half-scale kernels whole (a quarter of the pixels).
         let kfrac = if P::NAME == "fixed" { mcdenoise_core::fixed::KERNEL_FRAC } else { 0 };
         let mut k1 = Planes::<P::Store>::new(TAPS, wh, hh).with_frac(kfrac);
-        let mut kt = Planes::<P::Store>::new(TAPS, w, h).with_frac(kfrac);
-        t.time("kernel softmax", || -> Result<()> {
-            softmax::channel_softmax::<P>(isa, &l1, &mut k1.view_mut())?;
-            softmax::channel_softmax::<P>(isa, &lt.channels_range(0, TAPS)?, &mut kt.view_mut())?;
-            Ok(())
-        })?;
-        let alpha = t.time("fusion weight", || -> Result<Planes<P::Store>> {
-            let mut a32 = vec![0.0f32; n];
-            let mut lg = vec![0.0f32; n];
-            let lp = lt.channels_range(TAPS, 1)?;
-            for y in 0..h {
-                P::decode(lp.row(0, y), &mut lg[y * w..(y + 1) * w], lp.frac());
-            }
-            sgrad::sigmoid(isa, &View::new(&lg, 1, w, h)?, &mut ViewMut::new(&mut a32, 1, w, h)?)?;
-            Ok(store::<P>(1, w, h, &a32, Kind::Unit))
-        })?;
+        t.time("kernel softmax", || softmax::channel_softmax::<P>(isa, &l1, &mut k1.view_mut()))?;
         let (c1s, cts) = (store::<P>(3, w, h, c1, Kind::Image), store::<P>(3, w, h, ct, Kind::Image));
         let mut d1 = Planes::<P::Store>::new(3, wh, hh).with_frac(c1s.frac);
         let mut f1 = Planes::<P::Store>::new(3, wh, hh).with_frac(c1s.frac);
-        let mut ft = Planes::<P::Store>::new(3, w, h).with_frac(cts.frac);
         let mut fused = Planes::<P::Store>::new(3, w, h).with_frac(cts.frac.min(c1s.frac) - 1);
+        let head = Conv2d {
+            k: 1,
+            cin: feats.channels(),
+            cout: TAPS + 1,
+            weights: &inf.head_w,
+            bias: Some(&inf.head_b),
+            act: Activation::Identity,
+            weight_frac: inf.head_frac,
+        };
+        let whole = std::env::var_os("MCDENOISE_AFN_WHOLE_MAPS").is_some();
         t.time("filter and fuse", || -> Result<()> {
-            let (c1v, ctv) = (c1s.view(), cts.view());
+            let c1v = c1s.view();
             ctx.pool.bands(d1.view_mut(), 1, &mut ctx.scratch, 0, |b, y0, _| {
                 pool::reduce2x2::<P>(isa, Reduce::Mean, &c1v, b, y0)
             })?;
@@ -618,16 +652,33 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
             ctx.pool.bands(f1.view_mut(), 1, &mut ctx.scratch, len, |b, y0, s| {
                 unfold::apply_rows::<P>(isa, K, &k1v, &d1v, b, y0, s)
             })?;
-            let ktv = kt.view();
-            ctx.pool.bands(ft.view_mut(), 1, &mut ctx.scratch, len, |b, y0, s| {
-                unfold::apply_rows::<P>(isa, K, &ktv, &ctv, b, y0, s)
-            })?;
-            let (ftv, f1v, av) = (ft.view(), f1.view(), alpha.view());
-            ctx.pool.bands(fused.view_mut(), 2, &mut ctx.scratch, 0, |b, y0, _| {
-                pool::composite::<P>(isa, &ftv, &f1v, &av, b, y0)
-            })?;
-            Ok(())
+            let job = StreamJob { head: &head, feats, ta: cts.view(), coarse: f1.view(), variant, kfrac };
+            if whole {
+                // The naive layout, for measuring what streaming saves:
+                // the full-scale logits and kernels held whole.
+                let mut s = vec![0.0f32; stream_scratch_len::<P>(w, h)];
+                Ok(stream_band::<P>(isa, &job, &mut fused.view_mut(), 0, h, &mut s)?)
+            } else {
+                ctx.pool.bands(
+                    fused.view_mut(),
+                    STREAM_ROWS,
+                    &mut ctx.scratch,
+                    stream_scratch_len::<P>(w, STREAM_ROWS),
+                    |b, y0, s| {
+                        let mut y = 0;
+                        while y < b.height() {
+                            let rows = STREAM_ROWS.min(b.height() - y);
+                            let mut sub = b.rows_mut(y, rows);
+                            stream_band::<P>(isa, &job, &mut sub, y0 + y, rows, s)?;
+                            y += rows;
+                        }
+                        Ok(())
+                    },
+                )?;
+                Ok(())
+            }
         })?;
+        let rinf = &mut inf.refine;
         let i = t.time("decode", || fused.decode::<P>());
         let mut out = vec![0.0f32; 3 * n];
         if self.refine {
@@ -649,4 +700,97 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
         }
         Ok(out)
     }
+}
+
+/// What the streamed full-scale head reads.
+struct StreamJob<'a, T> {
+    head: &'a Conv2d<'a, T>,
+    /// The body's full-scale features (the head's input).
+    feats: View<'a, T>,
+    /// The TA (or, for a single-image variant, that image's) irradiance, whole.
+    ta: View<'a, T>,
+    /// The filtered half-scale 1 spp, whole.
+    coarse: View<'a, T>,
+    variant: Variant,
+    kfrac: i8,
+}
+
+/// Scratch words of [`stream_band`] for bands of `rows` rows `w` wide (every
+/// buffer of the band: the head's 50 planes, the kernels with a 3-row halo,
+/// the fusion weight, the filtered band, the conv's and the apply's scratch).
+fn stream_scratch_len<P: HostPrecision>(w: usize, rows: usize) -> usize {
+    let r = K / 2;
+    // Elements of at most 4 bytes: a word each is enough.
+    (TAPS + 1) * rows * w
+        + TAPS * (rows + 2 * r) * w
+        + rows * w
+        + 2 * rows * w
+        + 3 * rows * w
+        + cconv::conv2d_scratch_len::<P>(1, 16, TAPS + 1, w)
+        + unfold::scratch_len::<P>(K, 3, w)
+        + 64
+}
+
+/// Typed `n` elements at the front of `s`, and the rest.
+fn carve<T: bytemuck::Pod>(s: &mut [f32], n: usize) -> (&mut [T], &mut [f32]) {
+    let words = (n * std::mem::size_of::<T>()).div_ceil(4);
+    let (a, b) = s.split_at_mut(words);
+    (&mut bytemuck::cast_slice_mut::<f32, T>(a)[..n], b)
+}
+
+/// Rows `y0 .. y0 + rows` (`y0` even) of the fused image: the full-scale
+/// head for these rows only, its kernels' softmax and the fusion weight, the
+/// 7x7 apply on the TA image and the compositor (or, for a single-image
+/// variant, the filtered image itself) — so the full-scale kernel maps are
+/// never held whole.
+fn stream_band<P: HostPrecision>(
+    isa: Isa,
+    j: &StreamJob<'_, P::Store>,
+    out: &mut ViewMut<'_, P::Store>,
+    y0: usize,
+    rows: usize,
+    s: &mut [f32],
+) -> mcdenoise_core::Result<()> {
+    let (w, h) = (j.ta.width(), j.ta.height());
+    let r = K / 2;
+    let (sy0, sy1) = (y0.saturating_sub(r), (y0 + rows + r).min(h));
+    let sub = sy1 - sy0;
+    let (logits, s) = carve::<P::Store>(s, (TAPS + 1) * rows * w);
+    let (kern, s) = carve::<P::Store>(s, TAPS * sub * w);
+    let (alpha, s) = carve::<P::Store>(s, rows * w);
+    let (a32, s) = s.split_at_mut(rows * w);
+    let (l32, s) = s.split_at_mut(rows * w);
+    let (ft, s) = carve::<P::Store>(s, 3 * rows * w);
+    let conv_len = cconv::conv2d_scratch_len::<P>(1, j.feats.channels(), TAPS + 1, w);
+    let (cs, s) = s.split_at_mut(conv_len);
+    let logit_frac = if P::NAME == "fixed" { mcdenoise_core::fixed::LOGIT_FRAC } else { 0 };
+    let mut lv = ViewMut::new(logits, TAPS + 1, w, rows)?.with_frac(logit_frac);
+    cconv::conv2d::<P>(isa, j.head, &j.feats, &mut lv, y0, cs)?;
+    let lv = lv.as_view();
+    // Kernels into the band's rows of a halo-sized map (the apply reads
+    // only the output rows' kernels).
+    let mut kv = ViewMut::new(kern, TAPS, w, sub)?.with_frac(j.kfrac);
+    softmax::channel_softmax::<P>(isa, &lv.channels_range(0, TAPS)?, &mut kv.rows_mut(y0 - sy0, rows))?;
+    let mut fv = ViewMut::new(ft, 3, w, rows)?.with_frac(j.ta.frac());
+    unfold::apply_rows::<P>(isa, K, &kv.as_view(), &j.ta.rows(sy0, sub)?, &mut fv, y0 - sy0, s)?;
+    if j.variant != Variant::Fusion {
+        for c in 0..3 {
+            for yy in 0..rows {
+                out.row_mut(c, yy).copy_from_slice(fv.row(c, yy));
+            }
+        }
+        return Ok(());
+    }
+    // The fusion weight: the sigmoid of the 50th plane (f32).
+    let lp = lv.channels_range(TAPS, 1)?;
+    for yy in 0..rows {
+        P::decode(lp.row(0, yy), &mut l32[yy * w..(yy + 1) * w], lp.frac());
+    }
+    sgrad::sigmoid(isa, &View::new(l32, 1, w, rows)?, &mut ViewMut::new(a32, 1, w, rows)?)?;
+    let afrac = if P::NAME == "fixed" { mcdenoise_core::fixed::KERNEL_FRAC } else { 0 };
+    P::encode(a32, alpha, afrac);
+    let av = View::new(alpha, 1, w, rows)?.with_frac(afrac);
+    // The compositor on the band as an image of its own (2x2 cells inside it).
+    let (cy0, crows) = (y0 / 2, rows.div_ceil(2));
+    pool::composite::<P>(isa, &fv.as_view(), &j.coarse.rows(cy0, crows)?, &av, out, 0)
 }

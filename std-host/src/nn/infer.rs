@@ -61,6 +61,13 @@ impl<P: HostPrecision> Inference<P> {
         }
         if P::NAME != "fixed" {
             fracs.iter_mut().for_each(|f| *f = 0);
+        } else {
+            // A concatenation holds both parts' ranges: the coarser format.
+            for node in &net.nodes {
+                if let Node::Concat { a, b, out } = *node {
+                    fracs[out] = fracs[out].min(fracs[a]).min(fracs[b]);
+                }
+            }
         }
         let mut weights = Vec::new();
         for (i, c) in net.convs.iter().enumerate() {
@@ -219,14 +226,19 @@ impl<P: HostPrecision> Inference<P> {
                 }
                 Node::Concat { a, b, .. } => {
                     let (va, vb) = (src_of(&self.bufs, a, input), src_of(&self.bufs, b, input));
-                    if va.frac() != vb.frac() {
-                        return Err(HostError::Usage("concat of fixed-point tensors in different formats".into()));
-                    }
+                    let ofrac = out.frac;
                     let mut ov = out.view_mut();
+                    let mut row = vec![0.0f32; if va.frac() == ofrac && vb.frac() == ofrac { 0 } else { tw }];
                     for (c0, v) in [(0, va), (va.channels(), vb)] {
                         for ch in 0..v.channels() {
                             for y in 0..v.height() {
-                                ov.row_mut(c0 + ch, y).copy_from_slice(v.row(ch, y));
+                                if v.frac() == ofrac {
+                                    ov.row_mut(c0 + ch, y).copy_from_slice(v.row(ch, y));
+                                } else {
+                                    // Fixed point in another format: through f32.
+                                    P::decode(v.row(ch, y), &mut row, v.frac());
+                                    P::encode(&row, ov.row_mut(c0 + ch, y), ofrac);
+                                }
                             }
                         }
                     }

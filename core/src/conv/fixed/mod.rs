@@ -27,9 +27,17 @@ pub(crate) fn forward(
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `isa` is a `Supported` token: this CPU runs the ISA.
         Isa::Avx2 => unsafe { avx2::forward(layer, src, dst, y0, scratch) },
+        // The AVX-512 kernel holds at most 400 taps (cin k^2) and wants rows
+        // of 32 + k - 1 pixels; anything else runs the AVX2 kernel, which
+        // takes any channel count and width (not the scalar pixel).
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `isa` is a `Supported` token: this CPU runs the ISA; VNNI is probed here.
-        Isa::Avx512 => unsafe { avx512::forward(layer, src, dst, y0, scratch, crate::isa::avx512_vnni()) },
+        Isa::Avx512 if layer.cin * layer.k * layer.k <= 16 * 25 && src.width() >= 32 + layer.k - 1 => unsafe {
+            avx512::forward(layer, src, dst, y0, scratch, crate::isa::avx512_vnni())
+        },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: AVX-512 implies AVX2, FMA and F16C (the token checked them).
+        Isa::Avx512 => unsafe { avx2::forward(layer, src, dst, y0, scratch) },
         _ => {
             let _ = scratch;
             scalar::forward(layer, src, dst, y0)
