@@ -89,8 +89,8 @@ def cam(keys, fov=55):
     return {'fov': fov, 'fov_axis': 'x', 'up': [0, 1, 0], 'keyframes': keys}
 
 
-def scene(desc, camera, shapes, emitters=(), frames=12, seed=1):
-    return {'description': desc, 'resolution': [256, 144], 'frames': frames, 'spp': 1, 'ref_spp': 2048,
+def scene(desc, camera, shapes, emitters=(), frames=12, seed=1, ref_spp=1024):
+    return {'description': desc, 'resolution': [256, 144], 'frames': frames, 'spp': 1, 'ref_spp': ref_spp,
             'aov_spp': 32, 'seed': seed, 'max_depth': 8, 'camera': camera, 'shapes': shapes,
             'emitters': list(emitters)}
 
@@ -238,7 +238,7 @@ SCENES['heldout_pan'] = scene(
         obj('mirrorball', 'sphere', metal('Ag', 0.02), 0.25, [-0.5, 0.25, -0.8]),
         area('ceil', [10, 9.5, 8.5], [1.0, 0.7, 1], [0, 2.98, -1.5]),
         area('window', [2.5, 3.0, 4.0], [1.0, 0.8, 1], [-3.98, 1.7, -1.0], rotate=[0, 1, 0, 90]),
-    ], frames=24, seed=301)
+    ], frames=24, seed=301, ref_spp=2048)
 
 SCENES['heldout_light'] = scene(
     'held-out: fixed camera on a table with a teapot-like group (sphere, cylinder, box); one area light moves across the room, shadows sweep',
@@ -252,7 +252,7 @@ SCENES['heldout_light'] = scene(
         area('moving', [24, 21, 17], [0.35, 0.35, 1], [-2.0, 2.9, -0.5],
              keys=[{'t': 0, 'translate': [-2.5, 2.9, 0.2]}, {'t': 0.5, 'translate': [0.0, 2.9, -2.5]},
                    {'t': 1, 'translate': [2.5, 2.9, 0.2]}]),
-    ], emitters=[{'type': 'constant', 'radiance': [0.02, 0.02, 0.025]}], frames=24, seed=302)
+    ], emitters=[{'type': 'constant', 'radiance': [0.02, 0.02, 0.025]}], frames=24, seed=302, ref_spp=2048)
 
 SCENES['heldout_object'] = scene(
     'held-out: a ball rolls across a checker floor past a glass box and a gold cylinder while the camera follows',
@@ -264,7 +264,7 @@ SCENES['heldout_object'] = scene(
         obj('gbox', 'cube', GLASS, 0.25, [-0.3, 0.25, -1.5]),
         obj('gold', 'cylinder', metal('Au', 0.1), [0.2, 0.2, 0.7], [0.9, 0.0, -1.8], rotate=[1, 0, 0, -90]),
         area('ceil', [12, 11, 10], [0.8, 0.6, 1], [0, 2.98, -1.0]),
-    ], frames=24, seed=303)
+    ], frames=24, seed=303, ref_spp=2048)
 
 
 def main():
