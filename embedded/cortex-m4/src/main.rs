@@ -142,10 +142,11 @@ fn main() -> ! {
     // Instructions per tick, as a ratio: 2,000,000 / cal.
     let instructions = |ticks: u32| (ticks as u64 * 2_000_000 + cal as u64 / 2) / cal.max(1) as u64;
     hprintln!(
-        "mcdenoise embedded suite: {} cases on a {}x{} tile, Cortex-M4F (QEMU mps2-an386), scalar path",
+        "mcdenoise embedded suite: {} cases on a {}x{} tile, Cortex-M4 (QEMU mps2-an386), scalar path, {}",
         CASES.len(),
         W,
-        H
+        H,
+        if cfg!(target_abi = "eabihf") { "f32 on the FPU" } else { "f32 in software (no FPU)" }
     );
     hprintln!(
         "instruction counter: a 2,000,000-instruction loop reads {} timer ticks ({} instructions per tick)",
