@@ -241,11 +241,11 @@ fn suite_passes_natively() {
 fn build_wasm() -> Option<PathBuf> {
     const TARGET: &str = "wasm32-unknown-unknown";
     let required = std::env::var_os("MCDENOISE_REQUIRE_WASM").is_some();
-    let libdir = Command::new("rustc").args(["--print", "target-libdir", "--target", TARGET]).output().ok()?;
-    let libdir = PathBuf::from(String::from_utf8_lossy(&libdir.stdout).trim());
-    let installed = std::fs::read_dir(&libdir)
-        .map(|d| d.flatten().any(|e| e.file_name().to_string_lossy().starts_with("libcore-")))
-        .unwrap_or(false);
+    let rustc = std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into());
+    let libdir = Command::new(rustc).args(["--print", "target-libdir", "--target", TARGET]).output().ok();
+    let installed = libdir
+        .and_then(|o| std::fs::read_dir(String::from_utf8_lossy(&o.stdout).trim()).ok())
+        .is_some_and(|d| d.flatten().any(|e| e.file_name().to_string_lossy().starts_with("libcore-")));
     if !installed {
         let why = format!("the {TARGET} standard library is not installed (rustup target add {TARGET})");
         assert!(!required, "MCDENOISE_REQUIRE_WASM is set but {why}");
