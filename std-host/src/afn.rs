@@ -513,6 +513,61 @@ impl<P: HostPrecision> Afn<P> {
         Self::from_params(first, params, refine, variant)
     }
 
+    /// Memory per frame (see [`crate::memory`]): the accumulation, the f32
+    /// buffers kept, the kernel predictor's tensors (kept for the next frame:
+    /// full scale 12 + 44 + 16 planes, half 24 + 56 + 32 + 49, quarter 32 +
+    /// 32), the half-scale kernels, the stored irradiance, the filtered and
+    /// fused images, the refinement and its tensors; the full-scale kernels
+    /// stream in bands (scratch, not per pixel).
+    pub fn footprint(info: &crate::frame::FrameInfo, threads: usize) -> crate::memory::Footprint {
+        use crate::precision::store_bytes;
+        let s = store_bytes::<P>();
+        use crate::nn::infer::{held_bytes_per_pixel, ranges_bytes_per_pixel, tensors_bytes_per_pixel};
+        let bufs = 4 * (CIN as u64 + 9);
+        let kn = kernel_net().expect("the kernel predictor");
+        let (body_n, _) = body_net(&kn).expect("its body");
+        let refine_n = refine_net().expect("the refinement network");
+        let body = held_bytes_per_pixel(&body_n, s);
+        let refine_net = held_bytes_per_pixel(&refine_n, s);
+        let k1 = (TAPS as u64 * s).div_ceil(4);
+        // After the networks ran: kernels, c1 ct, d1 f1, fused; i decoded;
+        // refinement input, output, r decoded.
+        let tail = |l: &mut crate::memory::Ledger| {
+            l.alloc(k1).alloc(6 * s).alloc((6 * s).div_ceil(4)).alloc(3 * s);
+            l.alloc(12).free(3 * s);
+            l.alloc(4 * RIN as u64 + RIN as u64 * s).alloc(12).temp(12);
+        };
+        // The first frame: the accumulation, the TA decode, the buffers (in
+        // fixed point, the f32 range runs: the body's tensors kept while the
+        // refinement's run), the encoded input and the networks' tensors as
+        // they are made.
+        let mut first = crate::memory::Ledger::default();
+        let history = TemporalAccumulation::<P>::step_ledger(info, &mut first);
+        first.alloc(12).alloc(bufs);
+        if P::NAME == "fixed" {
+            first.temp(
+                ranges_bytes_per_pixel(&body_n)
+                    .max(tensors_bytes_per_pixel(&body_n, 4) + ranges_bytes_per_pixel(&refine_n)),
+            );
+        }
+        first.alloc(CIN as u64 * s).alloc(body + refine_net);
+        tail(&mut first);
+        // Every later frame: what the frame before kept, then the
+        // accumulation's step on top of it and the rest of the frame.
+        let mut later = crate::memory::Ledger::default();
+        later.alloc(bufs + CIN as u64 * s + body + refine_net);
+        TemporalAccumulation::<P>::step_ledger(info, &mut later);
+        later.alloc(12);
+        tail(&mut later);
+        let w = info.width;
+        let sl = stream_scratch_len::<P>(w, STREAM_ROWS).max(unfold::scratch_len::<P>(K, 3, w));
+        crate::memory::Footprint {
+            kept: history + 12 + bufs + CIN as u64 * s + body + refine_net,
+            peak: first.peak().max(later.peak()),
+            scratch: 4 * threads as u64 * sl as u64,
+        }
+    }
+
     /// With parameters in hand (kernel predictor, refinement).
     pub fn from_params(first: &Frame, params: (Vec<f32>, Vec<f32>), refine: bool, variant: Variant) -> Result<Self> {
         check_inputs(first)?;

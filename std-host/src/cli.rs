@@ -30,7 +30,9 @@ usage:
       --weights FILE             learned methods: weights made by 'mcdenoise train' (default: bundled)
       --half                     write f16 EXR (default f32)
       --png                      also write a tone-mapped PNG preview per frame
-      --timings                  print per-stage times
+      --timings                  print per-stage times and the memory taken (estimate, peak heap, peak resident)
+      --max-memory SIZE          refuse a frame whose estimated peak memory is over SIZE (e.g. 512M, 4G),
+                                 from its header, before allocating (default: the memory available now)
   mcdenoise precision [--frame FILE] [--size WxH] [--threads N] [--only OP,...] [--csv F] [--svg F]
                                  time and error (against the f64 oracle) of every operator in every
                                  precision and instruction set; CSV and an SVG plot (default under
@@ -96,6 +98,8 @@ pub struct DenoiseArgs {
     pub png: bool,
     /// Per-stage times.
     pub timings: bool,
+    /// `--max-memory`, in bytes.
+    pub max_memory: Option<u64>,
 }
 
 fn usage(msg: impl Into<String>) -> HostError {
@@ -170,6 +174,7 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
             let mut method = None;
             let (mut inputs, mut outdir) = (Vec::new(), None);
             let (mut half, mut png, mut timings) = (false, false, false);
+            let mut max_memory = None;
             while let Some(a) = it.next() {
                 match a.to_str() {
                     Some("--method") => method = Some(MethodKind::parse(&text("--method", it.next())?)?),
@@ -180,6 +185,11 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
                     Some("--png") => png = true,
                     Some("--timings") => timings = true,
                     Some("--no-refine") => settings.refine = false,
+                    Some("--max-memory") => {
+                        let v = text("--max-memory", it.next())?;
+                        max_memory =
+                            Some(crate::memory::parse_size(&v).map_err(|e| usage(format!("--max-memory: {e}")))?);
+                    }
                     Some(f @ ("--precision" | "--threads" | "--isa" | "--phi-color" | "--layers" | "--weights")) => {
                         let f = f.to_string();
                         let v = text(&f, it.next())?;
@@ -195,7 +205,7 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
             if inputs.is_empty() {
                 return Err(usage("denoise: no INPUT given (frame files or a directory)"));
             }
-            Ok(Command::Denoise(DenoiseArgs { method, settings, inputs, outdir, half, png, timings }))
+            Ok(Command::Denoise(DenoiseArgs { method, settings, inputs, outdir, half, png, timings, max_memory }))
         }
         "precision" => {
             let mut a = crate::report::ReportArgs {

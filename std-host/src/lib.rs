@@ -6,8 +6,10 @@
 
 pub mod afn;
 pub mod aligned;
+pub mod cleanup;
 pub mod error;
 pub mod frame;
+pub mod memory;
 pub mod methods;
 pub mod metrics;
 pub mod nn;

@@ -3,9 +3,20 @@
 use std::process::ExitCode;
 
 use mcdenoise::cli::{self, Command};
-use mcdenoise::{run, HostError};
+use mcdenoise::{cleanup, memory, run, HostError};
+
+/// Counts the heap (for `--timings` and the memory tests) and turns a failed
+/// allocation into one line and exit 1 instead of an abort.
+#[global_allocator]
+static ALLOC: memory::CountingAlloc = memory::CountingAlloc;
 
 fn main() -> ExitCode {
+    memory::counting_installed();
+    // SIGINT / SIGTERM remove the temporary outputs and exit 130 / 143.
+    if let Err(e) = cleanup::install_signal_handlers() {
+        eprintln!("mcdenoise: error: cannot install the signal handlers: {e}");
+        return ExitCode::from(1);
+    }
     // A bug must still end in one line, not a backtrace.
     std::panic::set_hook(Box::new(|info| {
         let msg = info

@@ -4,26 +4,68 @@
 //! half-written file; no output may land on an input.
 
 use std::collections::HashSet;
+use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
 use exr::prelude::*;
 
+use crate::cleanup::TempFile;
 use crate::error::{HostError, Result};
 
-/// Writes `path` atomically: `write` fills a temporary file next to it, which is then renamed.
+/// Writes `path` atomically: `write` fills a new temporary file next to it
+/// (registered in [`crate::cleanup`], so an interrupted run removes it),
+/// which is flushed and renamed over `path` only when `write` succeeded.
+/// On any failure the temporary file is gone and `path` is as it was.
+pub fn atomic_write_file(
+    path: &Path,
+    write: impl FnOnce(&mut std::io::BufWriter<&mut std::fs::File>) -> std::result::Result<(), String>,
+) -> Result<()> {
+    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let name = path.file_name().ok_or_else(|| HostError::write(path, "no file name"))?;
+    let (tmp, mut file) = TempFile::create(dir, name).map_err(|e| write_error(path, &e))?;
+    let mut buffered = std::io::BufWriter::with_capacity(1 << 16, &mut file);
+    write(&mut buffered)
+        .and_then(|()| buffered.flush().map_err(|e| io_reason(&e)))
+        .map_err(|e| HostError::write(path, e))?;
+    drop(buffered);
+    drop(file);
+    tmp.commit(path).map_err(|e| write_error(path, &e))
+}
+
+/// Writes `path` atomically through a writer that takes the temporary
+/// file's path (it already exists, empty). Prefer [`atomic_write_file`]:
+/// between a signal's removal of the temporary file and the exit, a writer
+/// that reopens it by path could create it again.
 pub fn atomic_write(path: &Path, write: impl FnOnce(&Path) -> std::result::Result<(), String>) -> Result<()> {
     let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let name = path.file_name().ok_or_else(|| HostError::write(path, "no file name"))?;
-    let tmp = dir.join(format!(".{}.tmp-{}", name.to_string_lossy(), std::process::id()));
-    match write(&tmp) {
-        Ok(()) => std::fs::rename(&tmp, path).map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
-            HostError::write(path, e)
-        }),
-        Err(e) => {
-            let _ = std::fs::remove_file(&tmp);
-            Err(HostError::write(path, e))
-        }
+    let (tmp, file) = TempFile::create(dir, name).map_err(|e| write_error(path, &e))?;
+    drop(file);
+    write(tmp.path()).map_err(|e| HostError::write(path, e))?;
+    tmp.commit(path).map_err(|e| write_error(path, &e))
+}
+
+/// The reason of a failed write in words a user acts on: the OS text, led
+/// by what it means where that is not plain (a full disk, the file-size
+/// limit).
+pub fn io_reason(e: &std::io::Error) -> String {
+    let hint = match e.raw_os_error() {
+        Some(libc::ENOSPC) => "the disk is full: ",
+        Some(libc::EFBIG) => "the file-size limit (ulimit -f) is reached: ",
+        _ => "",
+    };
+    format!("{hint}{e}")
+}
+
+fn write_error(path: &Path, e: &std::io::Error) -> HostError {
+    HostError::write(path, io_reason(e))
+}
+
+/// The reason of an `exr` write error (its I/O errors explained as above).
+fn exr_reason(e: exr::error::Error) -> String {
+    match e {
+        exr::error::Error::Io(io) => io_reason(&io),
+        other => other.to_string(),
     }
 }
 
@@ -38,25 +80,75 @@ pub fn write_rgb_exr(path: &Path, width: usize, height: usize, rgb: &[f32], half
 }
 
 /// Writes named planes (each `width * height` values) as one scanline EXR
-/// layer, ZIP-compressed, f16 when `half`.
+/// layer, ZIP-compressed, f16 when `half`, straight from the planes.
 pub fn write_exr(path: &Path, width: usize, height: usize, planes: &[(&str, &[f32])], half: bool) -> Result<()> {
     let plane = width * height;
-    let mut list = smallvec::SmallVec::new();
-    for (name, v) in planes {
-        if v.len() != plane {
-            return Err(HostError::write(path, format!("internal: channel {name} is not one plane")));
-        }
-        let samples = if half {
-            FlatSamples::F16(v.iter().map(|&x| f16::from_f32(x)).collect())
-        } else {
-            FlatSamples::F32(v.to_vec())
-        };
-        list.push(AnyChannel::new(*name, samples));
+    if let Some((name, _)) = planes.iter().find(|(_, v)| v.len() != plane) {
+        return Err(HostError::write(path, format!("internal: channel {name} is not one plane")));
     }
-    let layer =
-        Layer::new((width, height), LayerAttributes::default(), Encoding::SMALL_LOSSLESS, AnyChannels::sort(list));
-    let image = Image::from_layer(layer);
-    atomic_write(path, |tmp| image.write().to_file(tmp).map_err(|e| e.to_string()))
+    let names: Vec<&str> = planes.iter().map(|(n, _)| *n).collect();
+    write_exr_rows(path, width, height, &names, half, Compression::ZIP16, |c, y, row| {
+        row.copy_from_slice(&planes[c].1[y * width..(y + 1) * width])
+    })
+}
+
+/// Writes channels `names` as one scanline EXR layer (f16 when `half`,
+/// f32 otherwise) in `compression`, asking `row(channel, y, values)` for
+/// each row of each channel (`channel` indexes `names`) as the blocks are
+/// encoded: the image is never held whole, so frames of any size can be
+/// written from a formula or from planes without a copy.
+pub fn write_exr_rows(
+    path: &Path,
+    width: usize,
+    height: usize,
+    names: &[&str],
+    half: bool,
+    compression: Compression,
+    mut row: impl FnMut(usize, usize, &mut [f32]),
+) -> Result<()> {
+    use exr::block::writer::ChunksWriter as _;
+    use exr::meta::attribute::{ChannelDescription, SampleType, Text};
+    let sample = if half { SampleType::F16 } else { SampleType::F32 };
+    let mut order: Vec<usize> = (0..names.len()).collect();
+    order.sort_by_key(|&i| names[i]);
+    let mut descs = smallvec::SmallVec::new();
+    for &i in &order {
+        let text = Text::new_or_none(names[i])
+            .ok_or_else(|| HostError::write(path, format!("internal: bad channel name {}", names[i])))?;
+        descs.push(ChannelDescription::named(text, sample));
+    }
+    let header = exr::meta::header::Header::new(Text::default(), (width, height), descs).with_encoding(
+        compression,
+        exr::meta::BlockDescription::ScanLines,
+        LineOrder::Increasing,
+    );
+    let header = exr::meta::header::Header { own_attributes: LayerAttributes::default(), ..header };
+    let mut values = vec![0.0f32; width];
+    let mut halfs = vec![f16::ZERO; if half { width } else { 0 }];
+    atomic_write_file(path, |out| {
+        let written = exr::block::write(out, smallvec::smallvec![header], true, |meta, chunks| {
+            let channels = meta.headers[0].channels.clone();
+            let blocks = meta.collect_ordered_blocks(|index| {
+                exr::block::UncompressedBlock::from_lines(&channels, index, |line| {
+                    let loc = line.location;
+                    let dst = &mut values[..loc.sample_count];
+                    row(order[loc.channel], loc.position.1, dst);
+                    // Rows are whole: a scan-line block starts at x = 0.
+                    let done = if half {
+                        for (h, v) in halfs.iter_mut().zip(dst.iter()) {
+                            *h = f16::from_f32(*v);
+                        }
+                        line.write_samples_from_slice(&halfs[..loc.sample_count])
+                    } else {
+                        line.write_samples_from_slice(dst)
+                    };
+                    debug_assert!(done.is_ok(), "a line holds its samples");
+                })
+            });
+            chunks.on_progress(|_| ()).compress_all_blocks_sequential(&meta, blocks)
+        });
+        written.map_err(exr_reason)
+    })
 }
 
 /// Writes an 8-bit sRGB-ish preview: `clamp(x, 0, 1)^(1/2.2)` per channel.
@@ -70,13 +162,17 @@ pub fn write_png_preview(path: &Path, width: usize, height: usize, rgb: &[f32]) 
             bytes.push((v.powf(1.0 / 2.2) * 255.0 + 0.5) as u8);
         }
     }
-    atomic_write(path, |tmp| {
-        let file = std::fs::File::create(tmp).map_err(|e| e.to_string())?;
-        let mut enc = png::Encoder::new(std::io::BufWriter::new(file), width as u32, height as u32);
+    let png_reason = |e: png::EncodingError| match e {
+        png::EncodingError::IoError(io) => io_reason(&io),
+        other => other.to_string(),
+    };
+    atomic_write_file(path, |out| {
+        let mut enc = png::Encoder::new(out, width as u32, height as u32);
         enc.set_color(png::ColorType::Rgb);
         enc.set_depth(png::BitDepth::Eight);
-        let mut w = enc.write_header().map_err(|e| e.to_string())?;
-        w.write_image_data(&bytes).map_err(|e| e.to_string())
+        let mut w = enc.write_header().map_err(png_reason)?;
+        w.write_image_data(&bytes).map_err(png_reason)?;
+        w.finish().map_err(png_reason)
     })
 }
 
@@ -86,10 +182,10 @@ pub fn prepare_outputs(dir: &Path, inputs: &[PathBuf], outputs: &[PathBuf]) -> R
     if dir.exists() && !dir.is_dir() {
         return Err(HostError::write(dir, "exists and is not a directory"));
     }
-    std::fs::create_dir_all(dir).map_err(|e| HostError::write(dir, e))?;
-    let probe = dir.join(format!(".mcdenoise-probe-{}", std::process::id()));
-    std::fs::write(&probe, b"").map_err(|e| HostError::write(dir, format!("directory is not writable ({e})")))?;
-    let _ = std::fs::remove_file(&probe);
+    std::fs::create_dir_all(dir).map_err(|e| write_error(dir, &e))?;
+    // A registered temporary file, removed at once (and by a signal).
+    TempFile::create(dir, std::ffi::OsStr::new("mcdenoise-probe"))
+        .map_err(|e| HostError::write(dir, format!("directory is not writable ({})", io_reason(&e))))?;
     let canon = |p: &Path| std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf());
     let ins: HashSet<PathBuf> = inputs.iter().map(|p| canon(p)).collect();
     for o in outputs {

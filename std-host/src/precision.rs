@@ -78,6 +78,10 @@ pub trait HostPrecision:
     + TemporalPrecision
     + AtrousPrecision
 {
+    /// Bytes per value that [`HostPrecision::choose_frac`] allocates for a
+    /// moment to pick an image's format (fixed point sorts a copy of
+    /// `|v|`), for the memory estimates.
+    const FORMAT_COPY_BYTES: u64 = 0;
     /// Fractional bits to store `src` with (0 for the float precisions).
     fn choose_frac(_src: &[f32], _kind: Kind) -> i8 {
         0
@@ -120,6 +124,17 @@ impl HostPrecision for F32 {
     fn as_store_view_mut<'a, 'b>(v: &'b mut ViewMut<'a, f32>) -> Option<&'b mut ViewMut<'a, f32>> {
         Some(v)
     }
+}
+
+/// Bytes of one stored value of `P`.
+pub fn store_bytes<P: HostPrecision>() -> u64 {
+    size_of::<P::Store>() as u64
+}
+
+/// Whether `P` stores f32 (the host then hands the frame's own planes to
+/// the kernels, no copy) or f16 (the SURE pass reads those directly too).
+pub fn store_is<P: HostPrecision, T: 'static>() -> bool {
+    std::any::TypeId::of::<P::Store>() == std::any::TypeId::of::<T>()
 }
 
 /// Largest finite f16.
@@ -174,6 +189,7 @@ pub fn percentile_abs(src: &[f32], q: f64) -> f32 {
 }
 
 impl HostPrecision for Fixed {
+    const FORMAT_COPY_BYTES: u64 = 4;
     fn choose_frac(src: &[f32], kind: Kind) -> i8 {
         match kind {
             Kind::Unit => mcdenoise_core::fixed::KERNEL_FRAC,

@@ -6,7 +6,8 @@ use std::time::{Duration, Instant};
 
 use crate::cli::DenoiseArgs;
 use crate::error::{HostError, Result};
-use crate::frame::{check_same_size, Frame, Limits};
+use crate::frame::{check_same_size, check_same_size_as, Frame, Limits};
+use crate::memory::{Budget, Estimate};
 use crate::methods::{self, MethodKind, Settings, Timings};
 use crate::metrics::{self, Scores};
 use crate::output;
@@ -53,31 +54,74 @@ pub struct RunReport {
     pub plan: String,
     /// Per-frame warnings (non-finite values replaced).
     pub warnings: Vec<String>,
+    /// The memory estimate of the largest frame.
+    pub estimate: Option<Estimate>,
 }
 
-/// Denoises `inputs` with `method` into `outdir`.
+/// How a sequence's outputs are written and how much memory it may take.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SequenceOptions {
+    /// f16 output.
+    pub half: bool,
+    /// PNG previews.
+    pub png: bool,
+    /// `--max-memory` (without it: the memory available now).
+    pub max_memory: Option<u64>,
+}
+
+/// Opens frame `path` and checks, from its header, its size against the
+/// sequence's and the memory its processing takes against `budget`, before
+/// any pixel is read.
+#[allow(clippy::too_many_arguments)]
+fn open_checked(
+    path: &Path,
+    limits: &Limits,
+    first: Option<(&Path, (usize, usize))>,
+    method: MethodKind,
+    settings: &Settings,
+    opts: &SequenceOptions,
+    budget: &Budget,
+    report: &mut RunReport,
+) -> Result<Frame> {
+    let reader = Frame::open(path, limits)?;
+    let info = reader.info();
+    if let Some((first, dims)) = first {
+        check_same_size_as(first, dims, path, (info.width, info.height))?;
+    }
+    let est = Estimate::new(info, methods::footprint(method, settings, info), opts.half, opts.png);
+    budget.check(&est, info, &format!("{} in {}", method.name(), settings.precision.name()))?;
+    if report.estimate.is_none_or(|e| e.bytes() < est.bytes()) {
+        report.estimate = Some(est);
+    }
+    reader.read()
+}
+
+/// Denoises `inputs` with `method` into `outdir`. Each frame's header is
+/// checked (size, memory) before its pixels are read; each output is
+/// written whole or not at all.
 pub fn denoise_sequence(
     method: MethodKind,
     settings: &Settings,
     inputs: &[PathBuf],
     outdir: &Path,
-    half: bool,
-    png: bool,
+    opts: &SequenceOptions,
     mut on_frame: impl FnMut(usize, &[f32], &Frame),
 ) -> Result<RunReport> {
     let files = list_inputs(inputs)?;
     let outputs: Vec<PathBuf> = files.iter().map(|f| outdir.join(f.file_name().expect("a file has a name"))).collect();
     let pngs: Vec<PathBuf> = outputs.iter().map(|o| o.with_extension("png")).collect();
     let mut all_out = outputs.clone();
-    if png {
+    if opts.png {
         all_out.extend(pngs.iter().cloned());
     }
     output::prepare_outputs(outdir, &files, &all_out)?;
     let limits = Limits::default();
-    let first = Frame::load(&files[0], &limits)?;
+    let budget = Budget::detect(opts.max_memory, settings.threads);
+    let mut report = RunReport::default();
+    let first = open_checked(&files[0], &limits, None, method, settings, opts, &budget, &mut report)?;
     let mut den = methods::create(method, settings, &first)?;
     let mut ctx = methods::context(settings)?;
-    let mut report = RunReport { plan: den.plan().line(den.name()), ..RunReport::default() };
+    report.plan = den.plan().line(den.name());
     let bar = (files.len() > 1 && std::io::stderr().is_terminal()).then(|| {
         let b = indicatif::ProgressBar::new(files.len() as u64);
         b.set_style(
@@ -93,7 +137,7 @@ pub fn denoise_sequence(
     for (i, path) in files.iter().enumerate() {
         let f = match frame.take() {
             Some(f) => f,
-            None => Frame::load(path, &limits)?,
+            None => open_checked(path, &limits, Some((&files[0], dims)), method, settings, opts, &budget, &mut report)?,
         };
         check_same_size(&files[0], dims, &f)?;
         if f.replaced_nonfinite > 0 {
@@ -105,8 +149,8 @@ pub fn denoise_sequence(
         }
         let out = den.denoise(&f, &mut ctx, &mut report.timings)?;
         on_frame(i, &out, &f);
-        output::write_rgb_exr(&outputs[i], f.width, f.height, &out, half)?;
-        if png {
+        output::write_rgb_exr(&outputs[i], f.width, f.height, &out, opts.half)?;
+        if opts.png {
             output::write_png_preview(&pngs[i], f.width, f.height, &out)?;
         }
         report.frames += 1;
@@ -124,7 +168,8 @@ pub fn denoise_sequence(
 /// `mcdenoise denoise`.
 pub fn denoise_cmd(a: &DenoiseArgs) -> Result<()> {
     let t0 = Instant::now();
-    let rep = denoise_sequence(a.method, &a.settings, &a.inputs, &a.outdir, a.half, a.png, |_, _, _| {})?;
+    let opts = SequenceOptions { half: a.half, png: a.png, max_memory: a.max_memory };
+    let rep = denoise_sequence(a.method, &a.settings, &a.inputs, &a.outdir, &opts, |_, _, _| {})?;
     eprintln!("{}", rep.plan);
     for w in &rep.warnings {
         eprintln!("warning: {w}");
@@ -141,6 +186,7 @@ pub fn denoise_cmd(a: &DenoiseArgs) -> Result<()> {
     );
     if a.timings {
         print_timings(&rep.timings, rep.frames);
+        print_memory(rep.estimate.as_ref());
     }
     Ok(())
 }
@@ -153,6 +199,30 @@ pub fn print_timings(t: &Timings, frames: usize) {
         println!("{:<28} {:>10.2} {:>12.3}", name, ms(*d), ms(*d) / frames);
     }
     println!("{:<28} {:>10.2} {:>12.3}", "all kernels", ms(t.total()), ms(t.total()) / frames);
+}
+
+/// The memory line of `--timings`: the estimate, the counted peak heap and
+/// the peak resident size.
+pub fn print_memory(est: Option<&Estimate>) {
+    use crate::memory::format_bytes;
+    let mut parts = Vec::new();
+    if let Some(e) = est {
+        parts.push(format!(
+            "estimate {} = {} bytes per pixel x {} + {} ({} bytes)",
+            format_bytes(e.bytes()),
+            e.per_pixel,
+            e.pixels,
+            format_bytes(e.fixed),
+            e.bytes()
+        ));
+    }
+    if let Some((_, peak)) = crate::memory::heap() {
+        parts.push(format!("peak heap {} ({peak} bytes)", format_bytes(peak)));
+    }
+    if let Some(rss) = crate::memory::peak_resident() {
+        parts.push(format!("peak resident {}", format_bytes(rss)));
+    }
+    println!("memory: {}", parts.join("; "));
 }
 
 fn ms(d: Duration) -> f64 {
@@ -318,12 +388,12 @@ pub fn demo(settings: &Settings) -> Result<()> {
     let dir = sample_dir()?;
     let out_root = PathBuf::from("mcdenoise-out");
     let files = list_inputs(std::slice::from_ref(&dir))?;
-    let first = Frame::load(&files[0], &Limits::default())?;
+    let first = Frame::open(&files[0], &Limits::default())?;
     println!(
         "bundled sample: {} frames of {}x{} from {} ({} threads, {}, {})",
         files.len(),
-        first.width,
-        first.height,
+        first.info().width,
+        first.info().height,
         dir.display(),
         settings.threads,
         settings.precision.name(),
@@ -334,7 +404,8 @@ pub fn demo(settings: &Settings) -> Result<()> {
         let outdir = out_root.join(m.name());
         let mut scores = Vec::new();
         let mut err = None;
-        let rep = denoise_sequence(m, settings, std::slice::from_ref(&dir), &outdir, false, true, |i, out, f| {
+        let opts = SequenceOptions { png: true, ..SequenceOptions::default() };
+        let rep = denoise_sequence(m, settings, std::slice::from_ref(&dir), &outdir, &opts, |i, out, f| {
             let r = dir.join("ref").join(files[i].file_name().expect("file"));
             match load_color(&r) {
                 Ok(rf) if (rf.width, rf.height) == (f.width, f.height) => scores.push(metrics::score(

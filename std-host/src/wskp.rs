@@ -210,6 +210,50 @@ impl<P: HostPrecision> Wskp<P> {
         Self::from_params(first, net, params, layers)
     }
 
+    /// Memory per frame (see [`crate::memory`]): the accumulation, the f32
+    /// buffers kept (and their copies in another storage), the network's
+    /// tensors (kept for the next frame), the output. The first frame in
+    /// fixed point runs the network in f32 once for the formats, every
+    /// tensor kept and each decoded in turn;
+    /// every later frame runs the accumulation's step on top of what the
+    /// first one kept.
+    pub fn footprint(info: &crate::frame::FrameInfo, layers: usize, threads: usize) -> crate::memory::Footprint {
+        use crate::precision::{store_bytes, store_is};
+        let s = store_bytes::<P>();
+        let f32s = store_is::<P, f32>();
+        let bufs = 4 * (3 + 10 + 3 + 3);
+        let stored = if f32s { 0 } else { 16 * s };
+        // Another layer count is refused when the method is built.
+        let network = net(if layers == 3 { 3 } else { 6 }).expect("3 or 6 layers");
+        let net = crate::nn::infer::held_bytes_per_pixel(&network, s);
+        let output = |l: &mut crate::memory::Ledger| {
+            l.alloc(12);
+            if !f32s {
+                l.temp(3 * s);
+            }
+        };
+        let mut first = crate::memory::Ledger::default();
+        let history = TemporalAccumulation::<P>::step_ledger(info, &mut first);
+        first.alloc(bufs);
+        if P::NAME == "fixed" {
+            first.temp(crate::nn::infer::ranges_bytes_per_pixel(&network));
+        }
+        first.alloc(stored + net);
+        output(&mut first);
+        let mut later = crate::memory::Ledger::default();
+        later.alloc(bufs + stored + net);
+        TemporalAccumulation::<P>::step_ledger(info, &mut later);
+        output(&mut later);
+        let w = info.width;
+        let sl = softmax::fused_scratch_len::<P>(WindowPath::Separable, &SIZES, 3, w)
+            .max(mcdenoise_core::conv::conv2d_scratch_len::<P>(5, 14, 14, w));
+        crate::memory::Footprint {
+            kept: history + bufs + stored + net,
+            peak: first.peak().max(later.peak()),
+            scratch: 4 * threads as u64 * sl as u64,
+        }
+    }
+
     /// For a sequence starting with `first`, with parameters in hand.
     pub fn from_params(first: &Frame, net: Net, params: Vec<f32>, layers: usize) -> Result<Self> {
         check_inputs(first)?;

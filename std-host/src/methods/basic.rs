@@ -6,8 +6,9 @@ use mcdenoise_core::temporal::{self, TemporalInputs, TemporalParams};
 
 use super::{Ctx, Denoiser, Plan, Timings};
 use crate::error::{HostError, Result};
-use crate::frame::{Buffer, Frame};
-use crate::precision::{HostPrecision, Kind, Planes};
+use crate::frame::{Buffer, Frame, FrameInfo};
+use crate::memory::{Footprint, Ledger};
+use crate::precision::{store_bytes, HostPrecision, Kind, Planes};
 
 /// `--method none`: the (sanitised) input through the pipeline's precision.
 pub struct Passthrough<P: HostPrecision> {
@@ -19,6 +20,17 @@ impl<P: HostPrecision> Passthrough<P> {
     /// For a sequence starting with `first`.
     pub fn new(_first: &Frame) -> Self {
         Passthrough { plan: Plan { built: vec!["encode", "decode"], skipped: vec![] }, _p: PhantomData }
+    }
+}
+
+impl<P: HostPrecision> Passthrough<P> {
+    /// Memory per frame (see [`crate::memory`]): the colour in storage, then
+    /// the f32 output decoded from it.
+    pub fn footprint(_info: &FrameInfo) -> Footprint {
+        let (s, x) = (store_bytes::<P>(), P::FORMAT_COPY_BYTES);
+        let mut l = Ledger::default();
+        l.temp(3 * x).alloc(3 * s).alloc(12).free(3 * s);
+        Footprint { kept: 0, peak: l.peak(), scratch: 0 }
     }
 }
 
@@ -119,6 +131,33 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
         }
         let params = TemporalParams { pos_limit: POSITION_TOLERANCE * scene_scale(first), ..TemporalParams::default() };
         Ok(TemporalAccumulation { plan, params, use_normal, use_position, use_motion, prev: None })
+    }
+
+    /// Memory per frame (see [`crate::memory`]), replaying [`Self::step`]
+    /// and [`Denoiser::denoise`]: the history (colour, counts, normal and
+    /// position) is kept; a frame encodes its buffers, accumulates into new
+    /// colour and counts, drops the previous history, then decodes a copy.
+    pub fn footprint(info: &FrameInfo) -> Footprint {
+        let s = store_bytes::<P>();
+        let mut l = Ledger::default();
+        let history = Self::step_ledger(info, &mut l);
+        l.alloc(3 * s).alloc(12).free(3 * s); // the copy decoded to the output
+        Footprint { kept: history, peak: l.peak(), scratch: 0 }
+    }
+
+    /// What [`TemporalAccumulation::step`] allocates and frees, onto `l`; the
+    /// bytes per pixel it keeps (the history, live after the step).
+    pub fn step_ledger(info: &FrameInfo, l: &mut Ledger) -> u64 {
+        let (s, x) = (store_bytes::<P>(), P::FORMAT_COPY_BYTES);
+        let has = |b: Buffer| u64::from(info.has(b));
+        let (normal, position, motion) = (has(Buffer::Normal), has(Buffer::Position), has(Buffer::Motion));
+        let history = 4 * s + 3 * s * normal + 3 * s * position;
+        l.alloc(history);
+        l.temp(3 * x).alloc(3 * s); // colour (fixed point: a copy of |v| picks the format)
+        l.alloc(3 * s * normal + 3 * s * position + 2 * s * motion);
+        l.alloc(4 * s); // accumulated colour, history counts
+        l.free(history).free(3 * s + 2 * s * motion);
+        history
     }
 
     /// Accumulates one frame; returns the accumulated colour and the history counts.

@@ -11,7 +11,8 @@ use std::time::{Duration, Instant};
 use mcdenoise_core::Isa;
 
 use crate::error::{HostError, Result};
-use crate::frame::Frame;
+use crate::frame::{Frame, FrameInfo};
+use crate::memory::Footprint;
 use crate::par::{Pool, Scratch};
 use crate::precision::{HostPrecision, PrecisionKind};
 
@@ -201,6 +202,29 @@ fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Fr
             Box::new(crate::afn::Afn::<P>::new(first, &file, settings.refine)?)
         }
     })
+}
+
+/// The memory `kind` takes in `settings`' precision for frames like `info`,
+/// declared by the method itself (see [`crate::memory`]): a new method adds
+/// its entry here (the match is exhaustive, so it cannot be forgotten).
+pub fn footprint(kind: MethodKind, settings: &Settings, info: &FrameInfo) -> Footprint {
+    match settings.precision {
+        PrecisionKind::F32 => footprint_in::<mcdenoise_core::F32>(kind, settings, info),
+        PrecisionKind::F16 => footprint_in::<mcdenoise_core::F16>(kind, settings, info),
+        PrecisionKind::F16Arith => footprint_in::<mcdenoise_core::F16Arith>(kind, settings, info),
+        PrecisionKind::Fixed => footprint_in::<mcdenoise_core::Fixed>(kind, settings, info),
+    }
+}
+
+fn footprint_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, info: &FrameInfo) -> Footprint {
+    match kind {
+        MethodKind::None => Passthrough::<P>::footprint(info),
+        MethodKind::Ta => TemporalAccumulation::<P>::footprint(info),
+        MethodKind::Atrous => Atrous::<P>::footprint(info, false, settings.threads),
+        MethodKind::SureAtrous => Atrous::<P>::footprint(info, true, settings.threads),
+        MethodKind::Wskp => crate::wskp::Wskp::<P>::footprint(info, settings.layers, settings.threads),
+        MethodKind::Afn => crate::afn::Afn::<P>::footprint(info, settings.threads),
+    }
 }
 
 /// A context for `settings`.

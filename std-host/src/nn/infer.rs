@@ -36,6 +36,82 @@ pub struct Inference<P: HostPrecision> {
     last_use: Vec<usize>,
 }
 
+/// The node after which each tensor is read no more (the outputs: never,
+/// they stay until the next run).
+fn last_uses(net: &Net) -> Vec<usize> {
+    let mut last_use = vec![0; net.tensors.len()];
+    for (n, node) in net.nodes.iter().enumerate() {
+        match *node {
+            Node::Conv { x, .. } | Node::Pool { x, .. } | Node::Up { x, .. } => last_use[x] = n,
+            Node::Concat { a, b, .. } => {
+                last_use[a] = n;
+                last_use[b] = n;
+            }
+        }
+    }
+    for &o in &net.outputs {
+        last_use[o] = usize::MAX;
+    }
+    last_use
+}
+
+/// Bytes per pixel of the network's input frame that tensor `t` takes in
+/// storage of `bytes` per value (a tensor `level` times pooled has a
+/// quarter of the pixels per level; rounded up).
+fn tensor_bytes(net: &Net, t: usize, bytes: u64) -> u64 {
+    let spec = net.tensors[t];
+    (spec.c as u64 * bytes).div_ceil(1 << (2 * spec.level))
+}
+
+/// Bytes per pixel an [`Inference`] of `net` in storage of `bytes` per
+/// value holds from its first run on, which is also its peak during a run:
+/// a replay of [`Inference::run_view`] (the input borrowed; a buffer whose
+/// tensor is read no more waits in the free list for a later tensor of the
+/// same size, and is never given back). Buffers of different scales are
+/// never shared here, though a frame's sizes may let them be: a bound.
+pub fn held_bytes_per_pixel(net: &Net, bytes: u64) -> u64 {
+    let last_use = last_uses(net);
+    let nt = net.tensors.len();
+    let mut live: Vec<Option<usize>> = vec![None; nt];
+    let mut free: Vec<usize> = Vec::new();
+    let mut total = 0;
+    let key = |t: usize| (net.tensors[t].c, net.tensors[t].level);
+    for (n, node) in net.nodes.iter().enumerate() {
+        let out = match *node {
+            Node::Conv { out, .. } | Node::Pool { out, .. } | Node::Up { out, .. } | Node::Concat { out, .. } => out,
+        };
+        match free.iter().position(|&t| key(t) == key(out)) {
+            Some(i) => {
+                free.swap_remove(i);
+            }
+            None => total += tensor_bytes(net, out, bytes),
+        }
+        live[out] = Some(out);
+        for t in 0..nt {
+            if last_use[t] == n {
+                if let Some(b) = live[t].take() {
+                    free.push(b);
+                }
+            }
+        }
+    }
+    total
+}
+
+/// Peak bytes per pixel of [`Inference::ranges`] of `net` (f32, the input
+/// handed over as a frame of its own): every tensor kept, then each decoded
+/// in turn.
+pub fn ranges_bytes_per_pixel(net: &Net) -> u64 {
+    let largest = (1..net.tensors.len()).map(|t| tensor_bytes(net, t, 4)).max().unwrap_or(0);
+    tensors_bytes_per_pixel(net, 4) + largest.max(4 * net.desc.cin as u64)
+}
+
+/// Bytes per pixel of every tensor of `net` but its input together, in
+/// storage of `bytes` per value.
+pub fn tensors_bytes_per_pixel(net: &Net, bytes: u64) -> u64 {
+    (1..net.tensors.len()).map(|t| tensor_bytes(net, t, bytes)).sum()
+}
+
 /// Tensor `t`: the borrowed input, or a live buffer.
 fn src_of<'a, T: bytemuck::Pod + Default>(bufs: &'a [Option<Planes<T>>], t: usize, input: View<'a, T>) -> View<'a, T> {
     if t == 0 {
@@ -98,20 +174,7 @@ impl<P: HostPrecision> Inference<P> {
             });
             weights.push(Weights { w, b, frac });
         }
-        let mut last_use = vec![0; nt];
-        for (n, node) in net.nodes.iter().enumerate() {
-            match *node {
-                Node::Conv { x, .. } | Node::Pool { x, .. } | Node::Up { x, .. } => last_use[x] = n,
-                Node::Concat { a, b, .. } => {
-                    last_use[a] = n;
-                    last_use[b] = n;
-                }
-            }
-        }
-        // The outputs stay until the next run.
-        for &o in &net.outputs {
-            last_use[o] = usize::MAX;
-        }
+        let last_use = last_uses(net);
         Ok(Inference {
             net: net.clone(),
             weights,

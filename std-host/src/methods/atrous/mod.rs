@@ -34,8 +34,9 @@ use mcdenoise_core::{View, ViewMut};
 
 use super::{Ctx, Denoiser, Plan, Timings};
 use crate::error::{HostError, Result};
-use crate::frame::{Buffer, Frame};
-use crate::precision::{HostPrecision, Kind, Planes};
+use crate::frame::{Buffer, Frame, FrameInfo};
+use crate::memory::{Footprint, Ledger};
+use crate::precision::{store_bytes, store_is, HostPrecision, Kind, Planes};
 
 mod plan;
 mod prepare;
@@ -64,6 +65,53 @@ pub struct Atrous<P: HostPrecision> {
     params: AtrousParams,
     bufs: Option<Bufs<P::Store>>,
     _p: PhantomData<P>,
+}
+
+impl<P: HostPrecision> Atrous<P> {
+    /// Memory per frame (see [`crate::memory`]), replaying
+    /// [`Denoiser::denoise`]: the buffers kept across frames ([`Bufs`]), the
+    /// guides and level-0 images in storage (f32 borrows the frame's), the
+    /// output, the fixed-point decode of the kept levels (`sure-atrous`) and
+    /// the output's round trip through the storage type; with the band
+    /// scratch of `threads` threads at the frame's width.
+    pub fn footprint(info: &FrameInfo, sure: bool, threads: usize) -> Footprint {
+        let (s, x) = (store_bytes::<P>(), P::FORMAT_COPY_BYTES);
+        let (f32s, f16s) = (store_is::<P, f32>(), store_is::<P, half::f16>());
+        let has = |b: Buffer| u64::from(info.has(b));
+        let pair = info.has(Buffer::ColorB);
+        let (normal, position) = (has(Buffer::Normal), has(Buffer::Position));
+        let depth = u64::from(position == 0) * has(Buffer::Depth);
+        let groups = if sure && pair { 2 } else { 1 };
+        let single = u64::from(sure && !pair);
+        let (nsrc, nout) = (3 * groups + single, 3 * groups + 2 * single);
+        let levels = LEVELS as u64;
+        // c0, noise_raw, noise, zeros, the level outputs, out.
+        let kept = 4 * nsrc + 3 * 4 + if sure { levels * nout * s } else { 2 * nout * s } + 12;
+        let guides = if f32s { 0 } else { s + 3 * s * normal + 3 * s * position + s * depth + nsrc * s };
+        let mut l = Ledger::default();
+        l.alloc(kept);
+        if !f32s {
+            l.alloc(guides - nsrc * s).temp(nsrc * x).alloc(nsrc * s);
+        }
+        l.alloc(12); // the output
+        if sure && !f32s && !f16s {
+            l.temp(4 * (nsrc + levels * nout)); // every level decoded for the shrinkage
+        }
+        if !f32s {
+            l.temp(3 * x).alloc(3 * s).alloc(12).free(12).free(3 * s);
+        }
+        l.free(guides);
+        let w = info.width;
+        let mut len = (0..LEVELS).map(atrous::step_scratch_len::<P>).max().unwrap_or(0);
+        if pair {
+            let k = 2 * NOISE_RADIUS + 1;
+            len = len.max(softmax::window_scratch_len::<mcdenoise_core::F32>(WindowPath::BoxSum, k, 1, w));
+        }
+        if sure {
+            len = len.max(atrous::sure_levels_scratch_len(LEVELS as usize, w));
+        }
+        Footprint { kept, peak: l.peak(), scratch: 4 * (threads as u64) * len as u64 }
+    }
 }
 
 /// Runs a core kernel over bands of `dst` on the context's threads.
