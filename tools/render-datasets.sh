@@ -7,6 +7,10 @@
 #
 # Usage: bash tools/render-datasets.sh [DEST]   (default /work/data)
 #        PARTS="train val test" to choose parts.
+#        TRAIN_REF_SPP=N (train and val) and TEST_REF_SPP=N, TEST_FRAMES=N
+#        (held-out) override the scene files' reference samples and frame
+#        counts, to fit a render budget; the values used are in each
+#        sequence's render_info.json.
 # Needs: bash tools/setup-render.sh once.
 set -euo pipefail
 HERE="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
@@ -21,8 +25,14 @@ render() { # part scene
     local part=$1 scene=$2
     local json="$HERE/scenes/data/$scene.json"
     local out="$DEST/$part/$scene"
-    local frames
+    local frames extra=()
     frames=$("$PY" -c "import json,sys; print(json.load(open(sys.argv[1]))['frames'])" "$json")
+    if [ "$part" = test ]; then
+        [ -n "${TEST_FRAMES:-}" ] && frames=$TEST_FRAMES && extra+=(--frames "$TEST_FRAMES")
+        [ -n "${TEST_REF_SPP:-}" ] && extra+=(--ref-spp "$TEST_REF_SPP")
+    elif [ -n "${TRAIN_REF_SPP:-}" ]; then
+        extra+=(--ref-spp "$TRAIN_REF_SPP")
+    fi
     local last
     last=$(printf '%s/ref/frame_%04d.exr' "$out" $((frames - 1)))
     if [ -f "$last" ]; then
@@ -30,7 +40,7 @@ render() { # part scene
         return
     fi
     echo "[render-datasets] $part/$scene: $frames frames"
-    nice -n 10 "$PY" "$HERE/render.py" "$json" --out "$out" --ref-dtype float
+    nice -n 10 "$PY" "$HERE/render.py" "$json" --out "$out" --ref-dtype float "${extra[@]}"
 }
 
 for part in $PARTS; do

@@ -7,13 +7,18 @@ use std::path::Path;
 use crate::error::{HostError, Result};
 use crate::nn::weights::File;
 
+/// The 6-layer ImportanceNet, trained by `tools/train-all.sh` (docs/training.md).
+const WSKP6: &[u8] = include_bytes!("../weights/wskp6.safetensors");
+
 /// WSKP's weights for `layers` layers.
 pub fn wskp(path: Option<&Path>, layers: usize) -> Result<File> {
     if let Some(p) = path {
         return File::read(p);
     }
-    // Filled in when trained weights are bundled.
-    let bundled: Option<&'static [u8]> = None;
+    let bundled: Option<&'static [u8]> = match layers {
+        6 => Some(WSKP6),
+        _ => None,
+    };
     match bundled {
         Some(b) => File::from_bytes(b.to_vec(), Path::new(&format!("<bundled wskp{layers}>"))),
         None => Err(HostError::Usage(format!(
