@@ -4,10 +4,12 @@
 //! 1280x720 and 8192x4096, the pixel limit). For each size it writes frames
 //! with every buffer of the input contract (18 f16 channels, ZIP, a noisy
 //! synthetic scene), runs the CLI (2 threads, f32 output) on one frame (two
-//! for `ta`, whose history needs a second), and prints a Markdown row per
+//! for `ta`, `wskp` and `afn`, whose history needs a second), and prints a Markdown row per
 //! method and precision: the estimate, the heap the CLI's allocator counted
 //! at its peak, and the peak resident size from wait4, each in bytes per
-//! pixel and in all. `METHODS=a,b` and `PRECISIONS=a,b` narrow the table.
+//! pixel and in all. `METHODS=a,b` and `PRECISIONS=a,b` narrow the table;
+//! `WEIGHTS_WSKP=FILE`, `WEIGHTS_AFN=FILE` pass `--weights` (default: the
+//! bundled weights).
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::time::Instant;
@@ -101,7 +103,7 @@ fn main() {
             args.iter().map(parse).collect()
         }
     };
-    let methods = list("METHODS", &["none", "ta", "atrous", "sure-atrous"]);
+    let methods = list("METHODS", &["none", "ta", "atrous", "sure-atrous", "wskp", "afn"]);
     let precisions = list("PRECISIONS", &["f32", "f16", "f16-arith", "fixed"]);
     let root = std::env::temp_dir().join(format!("mcdenoise-memory-{}", std::process::id()));
     println!("| size | method | precision | estimate B/px | counted heap B/px | peak resident B/px | estimate | counted heap | peak resident | s |");
@@ -126,10 +128,16 @@ fn main() {
         for &m in &methods {
             for &p in &precisions {
                 let out = dir.join("out");
-                let inputs: &[PathBuf] = if m == "ta" { &frames } else { &frames[..1] };
+                // The methods with a history peak on their second frame.
+                let inputs: &[PathBuf] = if matches!(m, "ta" | "wskp" | "afn") { &frames } else { &frames[..1] };
+                let weights: Vec<String> = match std::env::var("WEIGHTS_".to_string() + &m.to_uppercase()) {
+                    Ok(w) => vec!["--weights".into(), w],
+                    Err(_) => Vec::new(),
+                };
                 let t0 = Instant::now();
                 let child = Command::new(&cli)
                     .args(["denoise", "--method", m, "--precision", p, "--threads", "2", "--timings"])
+                    .args(&weights)
                     .args(inputs)
                     .arg("-o")
                     .arg(&out)

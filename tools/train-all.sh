@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# Trains the bundled weights of the learned methods (std-host/weights/) on
+# the sequences rendered by tools/render-datasets.sh. The step counts are
+# what docs/training.md reports for the bundled weights; the times there were
+# measured on the 2-core machine named in it.
+#
+# Usage: bash tools/train-all.sh [DATA] [OUT]   (defaults /work/data, std-host/weights)
+#        MODELS="wskp6 wskp3 afn" to choose.
+set -euo pipefail
+HERE="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
+DATA="${1:-/work/data}"
+OUT="${2:-$HERE/../std-host/weights}"
+MODELS="${MODELS:-wskp6 wskp3 afn}"
+BIN="${MCDENOISE:-$HERE/../target/release/mcdenoise}"
+[ -x "$BIN" ] || (cd "$HERE/.." && cargo build --release)
+mkdir -p "$OUT"
+common=(--data "$DATA/train" --val "$DATA/val" --batch 8 --crop 128 --threads 2 --seed 1 --val-every 1000 --checkpoint-minutes 5)
+for m in $MODELS; do
+    case "$m" in
+        wskp6) args=(--method wskp --layers 6 --steps 6000) ;;
+        wskp3) args=(--method wskp --layers 3 --steps 5000) ;;
+        afn) args=(--method afn --steps 3000) ;;
+        afn-ta-only) args=(--method afn --variant ta-only --steps 3000) ;;
+        afn-1spp-only) args=(--method afn --variant 1spp-only --steps 3000) ;;
+        *) echo "unknown model $m" >&2; exit 2 ;;
+    esac
+    echo "[train-all] $m: ${args[*]}"
+    "$BIN" train "${args[@]}" "${common[@]}" --log "$OUT/$m.log.csv" -o "$OUT/$m.safetensors"
+    rm -f "$OUT/$m.safetensors.ckpt"
+done
