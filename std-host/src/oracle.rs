@@ -823,6 +823,17 @@ pub fn sigmoid(x: &[f64]) -> Vec<f64> {
     x.iter().map(|&v| 1.0 / (1.0 + (-v).exp())).collect()
 }
 
+/// The gradient of [`sigmoid`] from its output `y`: `dy y (1 - y)`.
+pub fn sigmoid_grad(y: &[f64], dy: &[f64]) -> Vec<f64> {
+    y.iter().zip(dy).map(|(&y, &g)| g * y * (1.0 - y)).collect()
+}
+
+/// The gradient of a LeakyReLU of slope `s` through its output `y`: `dy`
+/// where `y > 0`, `s dy` elsewhere.
+pub fn leaky_relu_grad(y: &[f64], dy: &[f64], s: f64) -> Vec<f64> {
+    y.iter().zip(dy).map(|(&y, &g)| if y > 0.0 { g } else { s * g }).collect()
+}
+
 /// The gradients of the per-pixel kernel apply: `(d_kernel, d_src)`.
 pub fn unfold_grad(
     k: usize,
