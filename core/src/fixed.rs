@@ -1,6 +1,11 @@
 //! Fixed-point formats and the integer arithmetic the `Fixed` precision is
 //! built from. Integer operations only: these kernels run where there is no FPU.
 //!
+//! The integer helpers (rounding shifts, division, `exp`/`log2` polynomials)
+//! are private to the crate: each is exact only within the ranges its callers
+//! guarantee. Public are the formats' constants, [`from_f32`] and [`pow2`],
+//! both total.
+//!
 //! A tensor stores `i16` values meaning `v / 2^frac`, with `frac` carried by
 //! its view ([`View::frac`](crate::View::frac)). The range is symmetric,
 //! `[-32767, 32767]`: a stored `-32768` reads as `-32767`, so no product or
@@ -31,19 +36,19 @@ pub const PAIR_SHIFT: i32 = 7;
 
 /// Reads a stored value into the symmetric range.
 #[inline(always)]
-pub fn ld(v: i16) -> i32 {
+pub(crate) fn ld(v: i16) -> i32 {
     (v as i32).max(-QMAX)
 }
 
 /// Saturates to the stored range.
 #[inline(always)]
-pub fn sat16(v: i64) -> i16 {
+pub(crate) fn sat16(v: i64) -> i16 {
     v.clamp(-(QMAX as i64), QMAX as i64) as i16
 }
 
 /// `v / 2^s` rounded half up for `s > 0`; `v * 2^-s` (saturating at i64) for `s <= 0`.
 #[inline(always)]
-pub fn shr_round(v: i64, s: i32) -> i64 {
+pub(crate) fn shr_round(v: i64, s: i32) -> i64 {
     if s > 0 {
         if s >= 63 {
             return if v < 0 { -1 } else { 0 };
@@ -57,7 +62,7 @@ pub fn shr_round(v: i64, s: i32) -> i64 {
 
 /// `a / b` rounded to nearest (half away from zero); `b > 0`.
 #[inline(always)]
-pub fn div_round(a: i64, b: i64) -> i64 {
+pub(crate) fn div_round(a: i64, b: i64) -> i64 {
     if a >= 0 {
         (a + b / 2) / b
     } else {
@@ -68,7 +73,7 @@ pub fn div_round(a: i64, b: i64) -> i64 {
 /// `2^(y / 256)` in Q.16 for `y <= 0` given in Q.8 (0 below `2^-17`).
 /// Degree-4 polynomial for the fraction (max relative error 1e-5).
 #[inline(always)]
-pub fn exp2_q8(y: i32) -> i32 {
+pub(crate) fn exp2_q8(y: i32) -> i32 {
     if y > 0 {
         return WEIGHT_ONE; // callers only pass y <= 0
     }
@@ -91,7 +96,7 @@ pub fn exp2_q8(y: i32) -> i32 {
 
 /// `e^x` in Q.16 for `x <= 0` given in Q.8 (the logit format's unit).
 #[inline(always)]
-pub fn exp_q8(x: i32) -> i32 {
+pub(crate) fn exp_q8(x: i32) -> i32 {
     // x * log2(e): log2(e) in Q.14 is 23637; |x| < 2^17 keeps the product in i32 range via i64.
     let y = shr_round(x as i64 * 23637, 14);
     exp2_q8(y.max(i32::MIN as i64) as i32)
@@ -100,7 +105,7 @@ pub fn exp_q8(x: i32) -> i32 {
 /// `log2(v / 2^frac)` in Q.16 for `v > 0` (`i32::MIN / 2` for `v <= 0`).
 /// Degree-5 polynomial for the mantissa (max error 3e-5).
 #[inline(always)]
-pub fn log2_q16(v: i64, frac: i32) -> i64 {
+pub(crate) fn log2_q16(v: i64, frac: i32) -> i64 {
     if v <= 0 {
         return (i32::MIN / 2) as i64;
     }
@@ -120,7 +125,7 @@ pub fn log2_q16(v: i64, frac: i32) -> i64 {
 
 /// `2^(y / 2^16)` as a value with `frac` fractional bits, saturating.
 #[inline(always)]
-pub fn exp2_q16(y: i64, frac: i32) -> i64 {
+pub(crate) fn exp2_q16(y: i64, frac: i32) -> i64 {
     let n = y >> 16; // floor
     let t = y & 0xffff;
     const C: [i64; 4] = [45418, 15821, 3413, 884];
@@ -134,7 +139,7 @@ pub fn exp2_q16(y: i64, frac: i32) -> i64 {
 
 /// Converts a stored value from `from` to `to` fractional bits (rounded, unsaturated).
 #[inline(always)]
-pub fn rescale(v: i64, from: i32, to: i32) -> i64 {
+pub(crate) fn rescale(v: i64, from: i32, to: i32) -> i64 {
     shr_round(v, from - to)
 }
 

@@ -26,6 +26,17 @@
 /// | à-trous step (f32, f16) | yes | AVX2 kernel |
 /// | SURE shrinkage (f32, f16) | yes | yes |
 /// | temporal accumulation | scalar | scalar |
+/// | noise estimators: local noise, 3x3 median (f32) | scalar | scalar |
+/// | backward: conv weight gradient (f32) | yes | yes |
+/// | backward: conv input gradient (f32; the forward conv on transposed weights) | yes | yes |
+/// | backward: fused filter, channel softmax, sigmoid, pools, nearest and bilinear upsample, compositor, per-pixel kernel apply; the bilinear upsample forward (f32) | compiled for AVX2 + FMA | compiled for AVX-512 |
+/// | backward: activation gradient (f32) | scalar | scalar |
+///
+/// "Compiled for" means the portable loops built a second and third time
+/// with that ISA's `target_feature`s (the `versions!` macro, or a
+/// `#[target_feature]` copy of the tile function for the fused filter's
+/// gradient): the compiler vectorises them, with no FMA contraction, so they
+/// give the scalar path's bits.
 ///
 /// `F16Arith` (every operation rounded to f16) is scalar only, and the fixed
 /// point importance filters, pools, tone maps and à-trous step are scalar.

@@ -114,6 +114,17 @@ pub use isa::Isa;
 pub use precision::{Element, F16Arith, Fixed, FloatElement, FloatPrecision, Precision, F16, F32};
 pub use view::{View, ViewMut};
 
+/// Saturating product of sizes, for the `*_scratch_len` functions: an absurd
+/// size saturates to `usize::MAX`, which then fails the scratch check cleanly.
+pub(crate) fn sat_prod(v: &[usize]) -> usize {
+    v.iter().fold(1usize, |a, &b| a.saturating_mul(b))
+}
+
+/// Saturating sum of sizes (see [`sat_prod`]).
+pub(crate) fn sat_sum(v: &[usize]) -> usize {
+    v.iter().fold(0usize, |a, &b| a.saturating_add(b))
+}
+
 /// Checks that `k` is an odd kernel size in `1..=max`.
 pub(crate) fn check_kernel_size(what: &'static str, k: usize, max: usize) -> Result<()> {
     if k % 2 == 1 && k <= max {

@@ -6,6 +6,12 @@
 //! overlap (`row_stride >= width`, `plane_stride >= (height - 1) * row_stride + width`),
 //! which is what makes [`ViewMut::split_rows_at`] sound: the bands it returns
 //! touch disjoint memory and can go to different threads.
+//!
+//! Invariant every constructor establishes and every sub-view keeps: for each
+//! `c < channels` and `y < height`, `c * plane_stride + y * row_stride + width`
+//! is computed without overflow and is at most the slice's length (also for
+//! `width == 0`). A view with no rows (`channels == 0` or `height == 0`) never
+//! offsets its pointer, whatever its strides.
 
 use core::marker::PhantomData;
 
@@ -19,7 +25,11 @@ fn required_len(
     row_stride: usize,
     plane_stride: usize,
 ) -> Result<usize> {
-    if channels == 0 || width == 0 || height == 0 {
+    // No row exists, so no offset is ever computed (sub-views of an empty view
+    // keep its base pointer). A width-0 view still has rows: its strides are
+    // checked like any other's, so that every row offset `c * plane_stride +
+    // y * row_stride` is computed without overflow and stays inside the slice.
+    if channels == 0 || height == 0 {
         return Ok(0);
     }
     if row_stride < width {
@@ -185,9 +195,14 @@ impl<'a, T> View<'a, T> {
             return Err(Error::BadParameter { what: "channel range", expected: "within the view" });
         }
         Ok(View {
-            // SAFETY: c0 <= channels, so the offset stays inside the checked allocation
-            // (or one past it when n == 0, which is never dereferenced).
-            ptr: if n == 0 { self.ptr } else { unsafe { self.ptr.add(c0 * self.plane_stride) } },
+            // SAFETY: when the sub-view has rows (n > 0, height > 0), plane c0 < channels
+            // has rows too and the invariant puts its offset inside the slice, without
+            // overflow. Otherwise the pointer is not moved.
+            ptr: if n == 0 || self.shape.height == 0 {
+                self.ptr
+            } else {
+                unsafe { self.ptr.add(c0 * self.plane_stride) }
+            },
             shape: Shape::new(n, self.shape.width, self.shape.height),
             row_stride: self.row_stride,
             plane_stride: self.plane_stride,
@@ -207,8 +222,14 @@ impl<'a, T> View<'a, T> {
             return Err(Error::BadParameter { what: "row range", expected: "within the view" });
         }
         Ok(View {
-            // SAFETY: as in channels_range.
-            ptr: if n == 0 { self.ptr } else { unsafe { self.ptr.add(y0 * self.row_stride) } },
+            // SAFETY: when the sub-view has rows (n > 0, channels > 0), row y0 < height of
+            // plane 0 exists and the invariant puts its offset inside the slice, without
+            // overflow. Otherwise the pointer is not moved.
+            ptr: if n == 0 || self.shape.channels == 0 {
+                self.ptr
+            } else {
+                unsafe { self.ptr.add(y0 * self.row_stride) }
+            },
             shape: Shape::new(self.shape.channels, self.shape.width, n),
             row_stride: self.row_stride,
             plane_stride: self.plane_stride,
@@ -405,7 +426,7 @@ impl<'a, T> ViewMut<'a, T> {
         let bottom = ViewMut {
             // SAFETY: y <= height; when rest > 0 the offset points at row y of plane 0,
             // inside the allocation. When rest == 0 nothing is ever dereferenced.
-            ptr: if rest == 0 || self.shape.channels == 0 || self.shape.width == 0 {
+            ptr: if rest == 0 || self.shape.channels == 0 {
                 self.ptr
             } else {
                 unsafe { self.ptr.add(y * self.row_stride) }
@@ -436,7 +457,7 @@ impl<'a, T> ViewMut<'a, T> {
         let second = ViewMut {
             // SAFETY: c <= channels; when rest > 0 the offset points at plane c,
             // inside the allocation. Otherwise nothing is ever dereferenced.
-            ptr: if rest == 0 || self.shape.width == 0 || self.shape.height == 0 {
+            ptr: if rest == 0 || self.shape.height == 0 {
                 self.ptr
             } else {
                 unsafe { self.ptr.add(c * self.plane_stride) }
@@ -450,14 +471,29 @@ impl<'a, T> ViewMut<'a, T> {
         (first, second)
     }
 
-    /// Rows `y0 .. y0 + n` of every plane as a shorter-lived exclusive view.
-    ///
-    /// # Panics
-    /// When the rows are out of range, like slice indexing.
-    pub fn rows_mut(&mut self, y0: usize, n: usize) -> ViewMut<'_, T> {
-        assert!(y0.checked_add(n).is_some_and(|e| e <= self.shape.height));
+    /// Rows `y0 .. y0 + n` of every plane as a shorter-lived exclusive view,
+    /// or an error when they are not within the view (like [`View::rows`]).
+    pub fn rows_mut(&mut self, y0: usize, n: usize) -> Result<ViewMut<'_, T>> {
+        if y0.checked_add(n).is_none_or(|e| e > self.shape.height) {
+            return Err(Error::BadParameter { what: "row range", expected: "within the view" });
+        }
+        Ok(self.rows_mut_clamped(y0, n))
+    }
+
+    /// [`ViewMut::rows_mut`] for a range the caller has checked; a range past
+    /// the view is clamped to it (like [`ViewMut::split_rows_at`]), never UB.
+    #[inline]
+    pub(crate) fn rows_mut_clamped(&mut self, y0: usize, n: usize) -> ViewMut<'_, T> {
+        debug_assert!(y0.checked_add(n).is_some_and(|e| e <= self.shape.height));
+        let y0 = y0.min(self.shape.height);
+        let n = n.min(self.shape.height - y0);
         ViewMut {
-            ptr: if n == 0 { self.ptr } else { self.ptr.wrapping_add(y0 * self.row_stride) },
+            // SAFETY: as in View::rows (y0 < height when n > 0).
+            ptr: if n == 0 || self.shape.channels == 0 {
+                self.ptr
+            } else {
+                unsafe { self.ptr.add(y0 * self.row_stride) }
+            },
             shape: Shape::new(self.shape.channels, self.shape.width, n),
             row_stride: self.row_stride,
             plane_stride: self.plane_stride,
@@ -473,12 +509,132 @@ impl<'a, T> ViewMut<'a, T> {
         }
         Ok(ViewMut {
             // SAFETY: as in View::channels_range.
-            ptr: if n == 0 { self.ptr } else { unsafe { self.ptr.add(c0 * self.plane_stride) } },
+            ptr: if n == 0 || self.shape.height == 0 {
+                self.ptr
+            } else {
+                unsafe { self.ptr.add(c0 * self.plane_stride) }
+            },
             shape: Shape::new(n, self.shape.width, self.shape.height),
             row_stride: self.row_stride,
             plane_stride: self.plane_stride,
             frac: self.frac,
             _m: PhantomData,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const STRIDES: [usize; 9] = [0, 1, 2, 3, 5, 1 << 40, 1 << 50, usize::MAX / 2, usize::MAX];
+
+    /// Every row of `v` lies inside `base[..len]` (by address).
+    fn rows_inside<T>(v: &View<'_, T>, base: *const T, len: usize) {
+        let lo = base as usize;
+        let hi = lo + len * core::mem::size_of::<T>();
+        for c in 0..v.channels() {
+            for y in 0..v.height() {
+                let r = v.row(c, y);
+                let a = r.as_ptr() as usize;
+                assert!(a >= lo && a + core::mem::size_of_val(r) <= hi, "row ({c}, {y}) of {v:?} outside the slice");
+            }
+        }
+        assert!(v.ptr as usize >= lo && v.ptr as usize <= hi, "{v:?} points outside the slice");
+    }
+
+    #[test]
+    fn empty_views_with_huge_strides_are_refused_or_never_offset() {
+        // Width 0: rows exist, so their strides are checked like any other view's.
+        assert_eq!(
+            View::<f32>::with_strides(&[], 2, 0, 2, 1 << 40, 1 << 50).unwrap_err(),
+            Error::BufferTooSmall { what: "view", needed: (1 << 50) + (1 << 40), got: 0 }
+        );
+        assert!(matches!(
+            View::<f32>::with_strides(&[], 3, 0, 2, usize::MAX / 2, usize::MAX / 2),
+            Err(Error::SizeOverflow { .. })
+        ));
+        assert!(matches!(ViewMut::<f32>::with_strides(&mut [], 2, 0, 2, 1, 0), Err(Error::BadStrides { .. })));
+        // No rows at all: accepted whatever the strides, and no sub-view moves the pointer.
+        let data = [0.0f32; 4];
+        let v = View::with_strides(&data, 0, 4, usize::MAX, usize::MAX, usize::MAX).unwrap();
+        let r = v.rows(usize::MAX - 1, 1).unwrap();
+        assert_eq!(r.ptr, data.as_ptr());
+        let v = View::with_strides(&data, usize::MAX, 4, 0, usize::MAX, usize::MAX).unwrap();
+        assert_eq!(v.channels_range(usize::MAX - 1, 1).unwrap().ptr, data.as_ptr());
+        let mut m = [0.0f32; 4];
+        let base = m.as_mut_ptr();
+        let mut w = ViewMut::with_strides(&mut m, 0, 4, usize::MAX, usize::MAX, usize::MAX).unwrap();
+        assert_eq!(w.rows_mut(usize::MAX - 1, 1).unwrap().ptr, base);
+        assert!(w.rows_mut(usize::MAX, 1).is_err());
+        let (_, bottom) = w.split_rows_at(usize::MAX - 3);
+        assert_eq!(bottom.ptr, base);
+        let mut w = ViewMut::with_strides(&mut m, usize::MAX, 4, 0, usize::MAX, usize::MAX).unwrap();
+        assert_eq!(w.channels_range_mut(usize::MAX - 1, 1).unwrap().ptr, base);
+        let (_, second) = w.split_channels_at(5);
+        assert_eq!(second.ptr, base);
+    }
+
+    #[test]
+    fn rows_mut_is_checked_like_rows() {
+        let mut m = [0.0f32; 12];
+        let mut w = ViewMut::new(&mut m, 2, 3, 2).unwrap();
+        assert!(w.rows_mut(1, 2).is_err());
+        assert!(w.rows_mut(usize::MAX, 2).is_err());
+        assert!(w.as_view().rows(1, 2).is_err());
+        let mut band = w.rows_mut(1, 1).unwrap();
+        band.row_mut(1, 0)[2] = 7.0;
+        assert_eq!(m[11], 7.0);
+    }
+
+    /// Every view the public constructors accept, and every sub-view of it,
+    /// has all its rows (also the empty rows of width 0) inside the slice:
+    /// small extents against tiny and huge strides.
+    #[test]
+    fn every_constructible_view_stays_inside_its_slice() {
+        let data = [0u16; 64];
+        let base = data.as_ptr();
+        let mut accepted = 0;
+        for channels in 0..4 {
+            for width in 0..4 {
+                for height in 0..4 {
+                    for &rs in &STRIDES {
+                        for &ps in &STRIDES {
+                            let Ok(v) = View::with_strides(&data, channels, width, height, rs, ps) else { continue };
+                            accepted += 1;
+                            rows_inside(&v, base, data.len());
+                            for c0 in 0..=channels {
+                                for n in 0..=channels - c0 {
+                                    rows_inside(&v.channels_range(c0, n).unwrap(), base, data.len());
+                                }
+                            }
+                            for y0 in 0..=height {
+                                for n in 0..=height - y0 {
+                                    let r = v.rows(y0, n).unwrap();
+                                    rows_inside(&r, base, data.len());
+                                    for c0 in 0..=channels {
+                                        rows_inside(&r.channels_range(c0, channels - c0).unwrap(), base, data.len());
+                                    }
+                                }
+                            }
+                            let mut m = [0u16; 64];
+                            let mbase = m.as_ptr();
+                            let mut w = ViewMut::with_strides(&mut m, channels, width, height, rs, ps).unwrap();
+                            for y0 in 0..=height {
+                                rows_inside(&w.rows_mut(y0, height - y0).unwrap().as_view(), mbase, 64);
+                            }
+                            w.fill(1);
+                            let (a, b) = w.split_rows_at(1);
+                            rows_inside(&a.as_view(), mbase, 64);
+                            rows_inside(&b.as_view(), mbase, 64);
+                            let (a, b) = b.split_channels_at(1);
+                            rows_inside(&a.as_view(), mbase, 64);
+                            rows_inside(&b.as_view(), mbase, 64);
+                        }
+                    }
+                }
+            }
+        }
+        assert!(accepted > 1000, "{accepted}");
     }
 }

@@ -723,7 +723,7 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
                         let mut y = 0;
                         while y < b.height() {
                             let rows = STREAM_ROWS.min(b.height() - y);
-                            let mut sub = b.rows_mut(y, rows);
+                            let mut sub = b.rows_mut(y, rows)?;
                             stream_band::<P>(isa, &job, &mut sub, y0 + y, rows, s)?;
                             y += rows;
                         }
@@ -825,7 +825,7 @@ fn stream_band<P: HostPrecision>(
     // Kernels into the band's rows of a halo-sized map (the apply reads
     // only the output rows' kernels).
     let mut kv = ViewMut::new(kern, TAPS, w, sub)?.with_frac(j.kfrac);
-    softmax::channel_softmax::<P>(isa, &lv.channels_range(0, TAPS)?, &mut kv.rows_mut(y0 - sy0, rows))?;
+    softmax::channel_softmax::<P>(isa, &lv.channels_range(0, TAPS)?, &mut kv.rows_mut(y0 - sy0, rows)?)?;
     let mut fv = ViewMut::new(ft, 3, w, rows)?.with_frac(j.ta.frac());
     unfold::apply_rows::<P>(isa, K, &kv.as_view(), &j.ta.rows(sy0, sub)?, &mut fv, y0 - sy0, s)?;
     if j.variant != Variant::Fusion {

@@ -80,9 +80,30 @@ pub enum Field {
     Noise,
     /// An output's gradient (for the backward passes), 14 planes, `[-1, 1)`.
     Grad,
+    /// Importance logits as wide as a trained network's maps, 6 planes,
+    /// `[-50, 50)` (rendered WSKP maps span about -61..47).
+    WideLogits,
+    /// Motion in pixels whose fractional part stays in `[0.2, 0.8]`, 2
+    /// planes: no bilinear weight near 0 and no `floor` near an integer, so
+    /// the accepted tap set is the same in every precision.
+    SafeMotion,
+    /// Block-constant world positions (4x4 blocks, neighbours 0.25 apart),
+    /// 3 planes: two pixels' positions agree exactly or differ by >= 0.25.
+    Blocks,
+    /// The previous frame's world position: [`Field::Position`] moved by
+    /// [`PREV_SHIFT`] pixels, and 5 units away where the source pixel is out
+    /// of the image; 3 planes.
+    PrevPosition,
+    /// The previous frame's normal: [`Field::Normal`] negated on one pixel in
+    /// five; 3 planes.
+    PrevNormal,
 }
 
-const FIELDS: usize = Field::Grad as usize + 1;
+const FIELDS: usize = Field::PrevNormal as usize + 1;
+
+/// Where a pixel's point was in the previous frame, relative to it:
+/// `PrevPosition(x + dx, y + dy) = Position(x, y)` (inside the search radius).
+pub const PREV_SHIFT: (usize, usize) = (1, 2);
 
 fn rng(seed: u64) -> impl FnMut() -> f32 {
     let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
@@ -164,6 +185,27 @@ impl Inputs {
             (0..49).for_each(|j| kern[j * n + p] /= t);
         }
         let (wc, hc) = (w.div_ceil(2), h.div_ceil(2));
+        let motion = field(2, w, h, -3.0, 3.0, s(14));
+        let mut blocks = vec![0.0; 3 * n];
+        let mut prev_pos = vec![0.0; 3 * n];
+        let mut prev_normal = normal.clone();
+        let (dx, dy) = PREV_SHIFT;
+        for y in 0..h {
+            for x in 0..w {
+                let p = y * w + x;
+                let (bx, by) = ((x / 4) as f32, (y / 4) as f32);
+                blocks[p] = bx * 0.25 - 1.0;
+                blocks[n + p] = by * 0.25 - 1.0;
+                blocks[2 * n + p] = 0.5;
+                let src = (x >= dx && y >= dy).then(|| (y - dy) * w + (x - dx));
+                for c in 0..3 {
+                    prev_pos[c * n + p] = src.map_or(pos[c * n + p] + 5.0, |q| pos[c * n + q]);
+                }
+                if (x * 7 + y * 3) % 5 == 0 {
+                    (0..3).for_each(|c| prev_normal[c * n + p] = -prev_normal[c * n + p]);
+                }
+            }
+        }
         let fields = [
             rad,
             alb,
@@ -179,11 +221,16 @@ impl Inputs {
             field(14, 1, 1, -0.1, 0.1, s(9)),
             field(3, wc, hc, 0.0, 4.0, s(12)),
             field(1, w, h, 0.0, 1.0, s(13)),
-            field(2, w, h, -3.0, 3.0, s(14)),
+            motion.clone(),
             field(3, w, h, 0.0, 4.0, s(15)),
             field(1, w, h, 0.0, 8.0, s(16)),
             field(1, w, h, 0.001, 0.02, s(17)),
             field(14, w, h, -1.0, 1.0, s(19)),
+            field(6, w, h, -50.0, 50.0, s(20)),
+            motion.iter().map(|&m| m.floor() + 0.2 + 0.6 * (m - m.floor())).collect(),
+            blocks,
+            prev_pos,
+            prev_normal,
         ];
         Inputs { w, h, fields }
     }
@@ -627,6 +674,16 @@ const CONV_TOL: [Tol; 4] = [tol(1e-6, 5e-6), tol(8e-4, 8e-4), tol(6e-3, 6e-3), t
 /// point Q1.14 to 2^-15 absolute, plus its exp approximation.
 const WEIGHT_TOL: [Tol; 4] = [tol(1e-7, 1e-6), tol(3e-4, 3e-3), tol(1e-3, 4e-3), tol(2e-3, 0.0)];
 
+/// Softmax weights from logits in `[-50, 50)`. A logit error `e` moves a
+/// weight `w` by at most `2 w (1 - w) e`. f16 stores a logit near 50 to
+/// 2^-6 (`e = 2^-6`): at most 3.1 % of the weight, plus its own 2^-11.
+/// f16 arithmetic also rounds `l - max` (up to 100: 2^-5) and the sums.
+/// Fixed point stores logits in Q7.8 whatever their size (`e = 2^-9`, the
+/// same as at +-8), so the +-8 bound holds; Q1.14 on the weight.
+/// (Set from the analysis and checked against the measured worst case, see
+/// [`IMAGE_TOL`].)
+const WIDE_WEIGHT_TOL: [Tol; 4] = [tol(1e-7, 1e-6), tol(1e-4, 3.3e-2), tol(1e-3, 7e-2), tol(2e-3, 0.0)];
+
 fn image_frac(peak: f32) -> i8 {
     frac_for_max(peak / 2.0)
 }
@@ -860,6 +917,88 @@ fn k_temporal<P: HostPrecision>(
     temporal::accumulate::<P>(a.isa, &inp, &temporal_params(), c, hist, y0)
 }
 
+/// The rejecting entries' limits: block positions agree exactly or are at
+/// least 0.25 apart (limit 0.1); unflipped synthetic normals differ by
+/// `|dn|^2 < 1.08`, flipped ones by `>= 1.44` (limit `1.1^2 = 1.21`). So no
+/// distance is near a limit in any precision.
+fn temporal_reject_params() -> TemporalParams {
+    TemporalParams { pos_limit: 0.1, normal_limit: 1.1, history_cap: 1e6, ..TemporalParams::default() }
+}
+
+/// The position-search entry's parameters: the true source pixel is an exact
+/// match (distance 0, or a few fixed-point units), any other is far more
+/// than 0.01 away in all but rare pixels.
+fn temporal_search_params() -> TemporalParams {
+    TemporalParams { pos_limit: 0.01, history_cap: 6.5, ..TemporalParams::default() }
+}
+
+/// Motion with position and normal rejection; inputs: colour, motion,
+/// previous colour, history, positions (current, previous), normals
+/// (current, previous).
+fn k_temporal_reject<P: HostPrecision>(
+    a: &Args<'_, P::Store>,
+    c: &mut ViewMut<'_, P::Store>,
+    hist: &mut ViewMut<'_, P::Store>,
+    y0: usize,
+    _: &mut [f32],
+) -> CoreResult<()> {
+    let inp = TemporalInputs {
+        color: a.ins[0],
+        normal: Some(a.ins[6]),
+        position: Some(a.ins[4]),
+        motion: Some(a.ins[1]),
+        prev_color: a.ins[2],
+        prev_normal: Some(a.ins[7]),
+        prev_position: Some(a.ins[5]),
+        prev_history: a.ins[3],
+    };
+    temporal::accumulate::<P>(a.isa, &inp, &temporal_reject_params(), c, hist, y0)
+}
+
+/// [`k_temporal_reject`] with the history as the checked output.
+fn k_temporal_reject_hist<P: HostPrecision>(
+    a: &Args<'_, P::Store>,
+    hist: &mut ViewMut<'_, P::Store>,
+    c: &mut ViewMut<'_, P::Store>,
+    y0: usize,
+    s: &mut [f32],
+) -> CoreResult<()> {
+    k_temporal_reject::<P>(a, c, hist, y0, s)
+}
+
+/// Reprojection by world-position search; inputs: colour, previous colour,
+/// history, positions (current, previous).
+fn k_temporal_search<P: HostPrecision>(
+    a: &Args<'_, P::Store>,
+    c: &mut ViewMut<'_, P::Store>,
+    hist: &mut ViewMut<'_, P::Store>,
+    y0: usize,
+    _: &mut [f32],
+) -> CoreResult<()> {
+    let inp = TemporalInputs {
+        color: a.ins[0],
+        normal: None,
+        position: Some(a.ins[3]),
+        motion: None,
+        prev_color: a.ins[1],
+        prev_normal: None,
+        prev_position: Some(a.ins[4]),
+        prev_history: a.ins[2],
+    };
+    temporal::accumulate::<P>(a.isa, &inp, &temporal_search_params(), c, hist, y0)
+}
+
+/// [`k_temporal_search`] with the history as the checked output.
+fn k_temporal_search_hist<P: HostPrecision>(
+    a: &Args<'_, P::Store>,
+    hist: &mut ViewMut<'_, P::Store>,
+    c: &mut ViewMut<'_, P::Store>,
+    y0: usize,
+    s: &mut [f32],
+) -> CoreResult<()> {
+    k_temporal_search::<P>(a, c, hist, y0, s)
+}
+
 /// The à-trous entry's parameters (level 1: hole 2).
 fn atrous_params() -> AtrousParams {
     AtrousParams { sigma_plane: 0.05, ..AtrousParams::default() }
@@ -922,6 +1061,86 @@ fn k_softmax6_grad(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, y0: usize, _: &m
     softmax::grad::channel_softmax_grad(a.isa, &a.ins[0].rows(y0, n)?, &a.ins[1].rows(y0, n)?, b)
 }
 
+fn k_conv1_grad_weights(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, _: usize, _: &mut [f32]) -> CoreResult<()> {
+    conv_grad_weights(a, b, 1)
+}
+fn k_avgpool_grad(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, y0: usize, _: &mut [f32]) -> CoreResult<()> {
+    pool::grad::avg_pool2x2_grad(a.isa, &a.ins[0], b, y0, a.size.1)
+}
+fn k_maxpool_grad(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, y0: usize, _: &mut [f32]) -> CoreResult<()> {
+    pool::grad::max_pool2x2_grad(a.isa, &a.ins[0], &a.ins[1], b, y0)
+}
+fn k_upsample_grad(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, y0: usize, _: &mut [f32]) -> CoreResult<()> {
+    pool::grad::upsample_nearest2x_grad(a.isa, &a.ins[0], b, y0)
+}
+fn k_bilinear(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, y0: usize, _: &mut [f32]) -> CoreResult<()> {
+    pool::grad::upsample_bilinear2x(a.isa, &a.ins[0], b, y0, a.size.1)
+}
+fn k_bilinear_grad(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, y0: usize, _: &mut [f32]) -> CoreResult<()> {
+    pool::grad::upsample_bilinear2x_grad(a.isa, &a.ins[0], b, y0)
+}
+
+/// Which gradient of the compositor an entry checks.
+#[derive(Clone, Copy, PartialEq)]
+enum CompositeGrad {
+    Fine,
+    Coarse,
+    Alpha,
+}
+
+/// The compositor's gradients for the band of the checked output (fine rows
+/// for `Fine` and `Alpha`, coarse rows for `Coarse`); the other two go to
+/// temporaries of the band's size. Inputs: fine, coarse, alpha, gradient.
+fn composite_grad_band(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, y0: usize, which: CompositeGrad) -> CoreResult<()> {
+    let (w, h) = a.size;
+    let (cw, n) = (w.div_ceil(2), b.height());
+    // Fine rows y0f .. y0f + nf and coarse rows y0f / 2 .. (y0f + nf + 1) / 2.
+    let (y0f, nf) = if which == CompositeGrad::Coarse { (2 * y0, (2 * n).min(h - 2 * y0)) } else { (y0, n) };
+    let nc = (y0f + nf).div_ceil(2) - y0f / 2;
+    let (mut t1, mut t2) = (vec![0.0f32; 3 * w * nf], vec![0.0f32; 3 * cw * nc.max(nf)]);
+    let g = a.ins[3].channels_range(0, 3)?;
+    let run = |df: &mut ViewMut<'_, f32>, dc: &mut ViewMut<'_, f32>, da: &mut ViewMut<'_, f32>| {
+        pool::grad::composite_grad(a.isa, &a.ins[0], &a.ins[1], &a.ins[2], &g, df, dc, da, y0f)
+    };
+    match which {
+        CompositeGrad::Fine => {
+            let mut dc = ViewMut::new(&mut t2[..3 * cw * nc], 3, cw, nc)?;
+            let mut da = ViewMut::new(&mut t1[..w * nf], 1, w, nf)?;
+            run(b, &mut dc, &mut da)
+        }
+        CompositeGrad::Coarse => {
+            let mut df = ViewMut::new(&mut t1, 3, w, nf)?;
+            let mut da = ViewMut::new(&mut t2[..w * nf], 1, w, nf)?;
+            run(&mut df, b, &mut da)
+        }
+        CompositeGrad::Alpha => {
+            let mut df = ViewMut::new(&mut t1, 3, w, nf)?;
+            let mut dc = ViewMut::new(&mut t2[..3 * cw * nc], 3, cw, nc)?;
+            run(&mut df, &mut dc, b)
+        }
+    }
+}
+fn k_composite_grad_fine(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, y0: usize, _: &mut [f32]) -> CoreResult<()> {
+    composite_grad_band(a, b, y0, CompositeGrad::Fine)
+}
+fn k_composite_grad_coarse(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, y0: usize, _: &mut [f32]) -> CoreResult<()> {
+    composite_grad_band(a, b, y0, CompositeGrad::Coarse)
+}
+fn k_composite_grad_alpha(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, y0: usize, _: &mut [f32]) -> CoreResult<()> {
+    composite_grad_band(a, b, y0, CompositeGrad::Alpha)
+}
+fn k_sigmoid(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, y0: usize, _: &mut [f32]) -> CoreResult<()> {
+    softmax::grad::sigmoid(a.isa, &a.ins[0].rows(y0, b.height())?, b)
+}
+fn k_sigmoid_grad(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, y0: usize, _: &mut [f32]) -> CoreResult<()> {
+    let n = b.height();
+    softmax::grad::sigmoid_grad(a.isa, &a.ins[0].rows(y0, n)?, &a.ins[1].rows(y0, n)?, b)
+}
+fn k_activation_grad(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, y0: usize, _: &mut [f32]) -> CoreResult<()> {
+    let n = b.height();
+    conv::grad::activation_grad(Activation::LeakyRelu(0.1), &a.ins[0].rows(y0, n)?, &a.ins[1].rows(y0, n)?, b)
+}
+
 fn k_local_noise(a: &Args<'_, f32>, b: &mut ViewMut<'_, f32>, y0: usize, _: &mut [f32]) -> CoreResult<()> {
     atrous::noise::local_noise_rows(&a.ins[0], b, y0)
 }
@@ -976,6 +1195,48 @@ fn o_temporal(i: &Inputs) -> Vec<f64> {
     )
 }
 
+/// The general temporal oracle on the registry's fields: `search` picks the
+/// position-search entry, else the rejecting motion entry.
+fn o_temporal_paths(i: &Inputs, search: bool) -> (Vec<f64>, Vec<f64>) {
+    let (col, prev, hist) = (i.f64(Field::Radiance), i.f64(Field::Previous), i.f64(Field::History));
+    let (pos, ppos) = (i.f64(Field::Position), i.f64(Field::PrevPosition));
+    let (blocks, motion) = (i.f64(Field::Blocks), i.f64(Field::SafeMotion));
+    let (n, pn) = (i.f64(Field::Normal), i.f64(Field::PrevNormal));
+    let (p, t) = if search {
+        let t = oracle::TemporalRef {
+            color: &col,
+            normal: None,
+            position: Some(&pos),
+            motion: None,
+            prev_color: &prev,
+            prev_normal: None,
+            prev_position: Some(&ppos),
+            prev_history: &hist,
+            c: 3,
+            w: i.w,
+            h: i.h,
+        };
+        (temporal_search_params(), t)
+    } else {
+        let t = oracle::TemporalRef {
+            color: &col,
+            normal: Some(&n),
+            position: Some(&blocks),
+            motion: Some(&motion),
+            prev_color: &prev,
+            prev_normal: Some(&pn),
+            prev_position: Some(&blocks),
+            prev_history: &hist,
+            c: 3,
+            w: i.w,
+            h: i.h,
+        };
+        (temporal_reject_params(), t)
+    };
+    let f = |v: f32| v as f64;
+    oracle::temporal(&t, f(p.pos_limit), f(p.normal_limit), f(p.alpha_min), f(p.history_cap), p.search_radius)
+}
+
 fn o_atrous(i: &Inputs) -> Vec<f64> {
     let p = atrous_params();
     let (noise, normal, pos) = (i.f64(Field::Noise), i.f64(Field::Normal), i.f64(Field::Position));
@@ -1003,6 +1264,18 @@ const GRAD_TOL: [Tol; 4] = [tol(1e-6, 1e-5), tol(0.0, 0.0), tol(0.0, 0.0), tol(0
 const FUSED_GRAD_TOL: [Tol; 4] = [tol(1e-6, 1e-5), tol(0.0, 0.0), tol(0.0, 0.0), tol(0.0, 0.0)];
 const WEIGHT_GRAD_TOL: [Tol; 4] = [tol(5e-6, 5e-6), tol(0.0, 0.0), tol(0.0, 0.0), tol(0.0, 0.0)];
 
+/// The half-resolution gradient the pool-gradient entries read.
+fn o_half_grad(i: &Inputs) -> Vec<f64> {
+    i.f64(Field::Grad)[..3 * i.w.div_ceil(2) * i.h.div_ceil(2)].to_vec()
+}
+
+/// The compositor's three gradients on the registry's fields.
+fn o_composite_grad(i: &Inputs) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    let g = &i.f64(Field::Grad)[..3 * i.w * i.h];
+    let (f, c, a) = (i.f64(Field::Radiance), i.f64(Field::Coarse), i.f64(Field::Alpha));
+    oracle::composite_grad(&f, &c, &a, g, 3, i.w, i.h)
+}
+
 fn concat(parts: [Vec<f64>; 3]) -> Vec<f64> {
     parts.concat()
 }
@@ -1019,6 +1292,26 @@ pub fn ops() -> Vec<Op> {
     let fusion = |c| In { field: Fusion, c, half: false, store: Store::Logit };
     let fused_ins = |m| vec![logits(m), fusion(m), full(Albedo, 3, Kind::Unit), image(Radiance)];
     let coarse = In { field: Coarse, c: 3, half: true, store: Store::As(Kind::Image) };
+    let temporal_reject_ins = vec![
+        image(Radiance),
+        full(SafeMotion, 2, Kind::Plain),
+        image(Previous),
+        full(History, 1, Kind::Plain),
+        full(Blocks, 3, Kind::Plain),
+        full(Blocks, 3, Kind::Plain),
+        full(Normal, 3, Kind::Unit),
+        full(PrevNormal, 3, Kind::Unit),
+    ];
+    let temporal_search_ins = vec![
+        image(Radiance),
+        image(Previous),
+        full(History, 1, Kind::Plain),
+        full(Position, 3, Kind::Plain),
+        full(PrevPosition, 3, Kind::Plain),
+    ];
+    // A half-resolution gradient: the first planes' worth of the Grad field.
+    let half_grad = In { field: Grad, c: 3, half: true, store: Store::As(Kind::Image) };
+    let composite_grad_ins = vec![image(Radiance), coarse, full(Alpha, 1, Kind::Unit), full(Grad, 14, Kind::Image)];
     let base = |name, about, inputs, prep| Op {
         name,
         about,
@@ -1105,6 +1398,30 @@ pub fn ops() -> Vec<Op> {
                 "softmax6",
                 "the softmax across 6 channels per pixel",
                 vec![fusion(6)],
+                per!(One, k_softmax6, no_scratch),
+            )
+        },
+        Op {
+            oracle: |i, _| oracle::importance_kernels(7, &i.f64(WideLogits)[..i.w * i.h], i.w, i.h),
+            out: (49, false),
+            tol: WIDE_WEIGHT_TOL,
+            out_frac: unit_frac,
+            ..base(
+                "kernels7-wide",
+                "per-pixel 7x7 softmax kernels from logits in [-50, 50) (a trained network's range)",
+                vec![In { field: WideLogits, c: 1, half: false, store: Store::Logit }],
+                per!(One, k_kernels7, no_scratch),
+            )
+        },
+        Op {
+            oracle: |i, _| oracle::channel_softmax(&i.f64(WideLogits), 6, i.w, i.h),
+            out: (6, false),
+            tol: WIDE_WEIGHT_TOL,
+            out_frac: unit_frac,
+            ..base(
+                "softmax6-wide",
+                "the softmax across 6 channels of logits in [-50, 50)",
+                vec![In { field: WideLogits, c: 6, half: false, store: Store::Logit }],
                 per!(One, k_softmax6, no_scratch),
             )
         },
@@ -1216,6 +1533,48 @@ pub fn ops() -> Vec<Op> {
             )
         },
         Op {
+            oracle: |i, _| o_temporal_paths(i, false).0,
+            out2: Some((1, 8)),
+            ..base(
+                "temporal-reject",
+                "temporal accumulation by motion, taps rejected by position and normal, the rest renormalised",
+                temporal_reject_ins.clone(),
+                per!(Two, k_temporal_reject, no_scratch),
+            )
+        },
+        Op {
+            oracle: |i, _| o_temporal_paths(i, false).1,
+            out: (1, false),
+            out2: Some((3, 12)),
+            ..base(
+                "temporal-reject-hist",
+                "the history the rejecting accumulation writes: min(n + 1, cap), 0 where every tap is rejected",
+                temporal_reject_ins,
+                per!(Two, k_temporal_reject_hist, no_scratch),
+            )
+        },
+        Op {
+            oracle: |i, _| o_temporal_paths(i, true).0,
+            out2: Some((1, 8)),
+            ..base(
+                "temporal-search",
+                "temporal accumulation without motion: the closest previous world position within 2 pixels",
+                temporal_search_ins.clone(),
+                per!(Two, k_temporal_search, no_scratch),
+            )
+        },
+        Op {
+            oracle: |i, _| o_temporal_paths(i, true).1,
+            out: (1, false),
+            out2: Some((3, 12)),
+            ..base(
+                "temporal-search-hist",
+                "the history of the position-search accumulation, capped at 6.5",
+                temporal_search_ins,
+                per!(Two, k_temporal_search_hist, no_scratch),
+            )
+        },
+        Op {
             oracle: |i, _| o_atrous(i),
             ..base(
                 "atrous",
@@ -1323,6 +1682,150 @@ pub fn ops() -> Vec<Op> {
                 "backward: the channel softmax's gradient y (dy - sum y dy)",
                 vec![fusion(6), full(Grad, 6, Kind::Image)],
                 per_f32!(One, k_softmax6_grad),
+            )
+        },
+        Op {
+            oracle: |i, _| o_conv_grad(i, 1, Weights1).1,
+            out_fixed: Some((1, 14 * 14, 1)),
+            precisions: F32_ONLY,
+            tol: WEIGHT_GRAD_TOL,
+            ..base(
+                "conv1x1-grad-weights",
+                "backward: the weight gradient of a 1x1 convolution 14 -> 14, summed over the image",
+                vec![full(Features, 14, Kind::Image), full(Grad, 14, Kind::Image)],
+                per_f32!(One, k_conv1_grad_weights),
+            )
+        },
+        Op {
+            oracle: |i, _| oracle::avg_pool_grad(&o_half_grad(i), 3, i.w, i.h),
+            precisions: F32_ONLY,
+            tol: GRAD_TOL,
+            align: 2,
+            ..base(
+                "avgpool-grad",
+                "backward: the 2x2 average pool's gradient (a quarter of the cell's to each pixel)",
+                vec![half_grad],
+                per_f32!(One, k_avgpool_grad),
+            )
+        },
+        Op {
+            oracle: |i, _| oracle::max_pool_grad(&i.f64(Radiance), &o_half_grad(i), 3, i.w, i.h),
+            precisions: F32_ONLY,
+            tol: GRAD_TOL,
+            align: 2,
+            ..base(
+                "maxpool-grad",
+                "backward: the 2x2 max pool's gradient (the cell's to its maximum)",
+                vec![image(Radiance), half_grad],
+                per_f32!(One, k_maxpool_grad),
+            )
+        },
+        Op {
+            oracle: |i, _| oracle::upsample_grad(&i.f64(Grad)[..3 * i.w * i.h], 3, i.w, i.h),
+            out: (3, true),
+            precisions: F32_ONLY,
+            tol: GRAD_TOL,
+            ..base(
+                "upsample-grad",
+                "backward: the nearest 2x upsample's gradient (each cell's sum)",
+                vec![full(Grad, 3, Kind::Image)],
+                per_f32!(One, k_upsample_grad),
+            )
+        },
+        Op {
+            oracle: |i, _| oracle::upsample_bilinear(&i.f64(Coarse), 3, i.w, i.h),
+            precisions: F32_ONLY,
+            tol: GRAD_TOL,
+            ..base(
+                "upsample-bilinear",
+                "bilinear 2x upsampling (align_corners = false), the forward of the next entry",
+                vec![coarse],
+                per_f32!(One, k_bilinear),
+            )
+        },
+        Op {
+            oracle: |i, _| oracle::upsample_bilinear_grad(&i.f64(Grad)[..3 * i.w * i.h], 3, i.w, i.h),
+            out: (3, true),
+            precisions: F32_ONLY,
+            tol: GRAD_TOL,
+            ..base(
+                "upsample-bilinear-grad",
+                "backward: the bilinear 2x upsample's gradient",
+                vec![full(Grad, 3, Kind::Image)],
+                per_f32!(One, k_bilinear_grad),
+            )
+        },
+        Op {
+            oracle: |i, _| o_composite_grad(i).0,
+            precisions: F32_ONLY,
+            tol: GRAD_TOL,
+            align: 2,
+            ..base(
+                "composite-grad-fine",
+                "backward: the scale compositor's gradient with respect to the fine image",
+                composite_grad_ins.clone(),
+                per_f32!(One, k_composite_grad_fine),
+            )
+        },
+        Op {
+            oracle: |i, _| o_composite_grad(i).1,
+            out: (3, true),
+            precisions: F32_ONLY,
+            tol: GRAD_TOL,
+            ..base(
+                "composite-grad-coarse",
+                "backward: the scale compositor's gradient with respect to the coarse image",
+                composite_grad_ins.clone(),
+                per_f32!(One, k_composite_grad_coarse),
+            )
+        },
+        Op {
+            oracle: |i, _| o_composite_grad(i).2,
+            out: (1, false),
+            precisions: F32_ONLY,
+            tol: GRAD_TOL,
+            align: 2,
+            ..base(
+                "composite-grad-alpha",
+                "backward: the scale compositor's gradient with respect to its blend weight",
+                composite_grad_ins,
+                per_f32!(One, k_composite_grad_alpha),
+            )
+        },
+        Op {
+            oracle: |i, _| oracle::sigmoid(&i.f64(Features)),
+            out: (14, false),
+            precisions: F32_ONLY,
+            tol: GRAD_TOL,
+            ..base(
+                "sigmoid",
+                "1 / (1 + e^-x) (AFN's fusion weight)",
+                vec![full(Features, 14, Kind::Image)],
+                per_f32!(One, k_sigmoid),
+            )
+        },
+        Op {
+            oracle: |i, _| oracle::sigmoid_grad(&i.f64(Alpha), &i.f64(Grad)[..i.w * i.h]),
+            out: (1, false),
+            precisions: F32_ONLY,
+            tol: GRAD_TOL,
+            ..base(
+                "sigmoid-grad",
+                "backward: the sigmoid's gradient from its output, dy y (1 - y)",
+                vec![full(Alpha, 1, Kind::Unit), full(Grad, 1, Kind::Image)],
+                per_f32!(One, k_sigmoid_grad),
+            )
+        },
+        Op {
+            oracle: |i, _| oracle::leaky_relu_grad(&i.f64(Features), &i.f64(Grad), 0.1),
+            out: (14, false),
+            precisions: F32_ONLY,
+            tol: GRAD_TOL,
+            ..base(
+                "activation-grad",
+                "backward: LeakyReLU(0.1)'s gradient through its output",
+                vec![full(Features, 14, Kind::Image), full(Grad, 14, Kind::Image)],
+                per_f32!(One, k_activation_grad),
             )
         },
         Op {

@@ -320,7 +320,7 @@ fn sure_shrink_levels_equals_the_per_level_passes() {
                                 source,
                                 &atrous::SURE_CANDIDATES,
                                 &views,
-                                &mut gv.rows_mut(y0, rows),
+                                &mut gv.rows_mut(y0, rows).unwrap(),
                                 y0,
                                 &mut scratch,
                             )

@@ -176,7 +176,7 @@ proptest! {
                 let mut dcv = dc.view_mut();
                 let mut dav = da.view_mut();
                 pgrad::composite_grad(isa, &f.view(), &co.view(), &a.view(), &g.view(),
-                    &mut dfv.rows_mut(y0, n), &mut dcv.rows_mut(c0, cn), &mut dav.rows_mut(y0, n), y0).unwrap();
+                    &mut dfv.rows_mut(y0, n).unwrap(), &mut dcv.rows_mut(c0, cn).unwrap(), &mut dav.rows_mut(y0, n).unwrap(), y0).unwrap();
             }
             close(&format!("d_fine {isa:?}"), &df.data, &ff, 1e-5);
             close(&format!("d_coarse {isa:?}"), &dc.data, &fc, 1e-5);
@@ -276,7 +276,8 @@ fn check_fused(w: usize, h: usize, sizes: &[usize], fusion: bool, albedo: bool, 
             while y0 < h {
                 let n = split.max(1).min(h - y0);
                 let (mut div, mut dfv, mut drv) = (di.view_mut(), df.view_mut(), dr.view_mut());
-                let (mut a, mut b, mut cc) = (div.rows_mut(y0, n), dfv.rows_mut(y0, n), drv.rows_mut(y0, n));
+                let (mut a, mut b, mut cc) =
+                    (div.rows_mut(y0, n).unwrap(), dfv.rows_mut(y0, n).unwrap(), drv.rows_mut(y0, n).unwrap());
                 let out = sgrad::FusedGrads { importance: &mut a, fusion: fusion.then_some(&mut b), radiance: &mut cc };
                 sgrad::fused_filter_grad(isa, &inp, &g.view(), out, y0, &mut scratch).unwrap();
                 y0 += n;

@@ -284,8 +284,15 @@ fn fixed_conv_simd_matches_scalar_in_bands_at_the_extremes() {
                             let mut y0 = 0;
                             while y0 < h {
                                 let n = band.min(h - y0);
-                                conv::conv2d::<Fixed>(isa, &layer, &sv, &mut gv.rows_mut(y0, n), y0, &mut scratch)
-                                    .unwrap();
+                                conv::conv2d::<Fixed>(
+                                    isa,
+                                    &layer,
+                                    &sv,
+                                    &mut gv.rows_mut(y0, n).unwrap(),
+                                    y0,
+                                    &mut scratch,
+                                )
+                                .unwrap();
                                 y0 += n;
                             }
                             assert_eq!(

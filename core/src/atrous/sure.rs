@@ -21,7 +21,7 @@ const _: () = assert!(WIN == 5);
 
 /// Scratch words [`sure_shrink`] needs for images `width` wide.
 pub fn sure_scratch_len(width: usize) -> usize {
-    (2 * WIN + 5) * width
+    (2 * WIN + 5).saturating_mul(width)
 }
 
 /// Adds `beta(p) * D(p)` of one level to the reconstruction rows `y0 ..`.

@@ -120,7 +120,7 @@ impl<T> Conv2d<'_, T> {
 pub trait ConvPrecision: Precision + Sealed {
     #[doc(hidden)]
     fn scratch_len_impl(k: usize, cin: usize, cout: usize, width: usize) -> usize {
-        width.saturating_add(cout.saturating_mul(cin).saturating_mul(k * k))
+        width.saturating_add(cout.saturating_mul(cin).saturating_mul(k.saturating_mul(k)))
     }
     #[doc(hidden)]
     fn check_layer(_layer: &Conv2d<'_, Self::Store>) -> Result<()> {
@@ -166,9 +166,13 @@ impl ConvPrecision for Fixed {
     /// The bit budget: with inputs in `[-32767, 32767]`, every output
     /// channel's `sum |w|` up to 65535 keeps the exact i32 sum below 2^31.
     fn check_layer(layer: &Conv2d<'_, i16>) -> Result<()> {
+        // The layer's own checks first: they make `weights` exactly
+        // `cout * cin * k * k` long (no overflow), so the chunks below are the
+        // output channels, whoever calls this.
+        layer.check()?;
         let per = layer.cin * layer.k * layer.k;
-        for co in 0..layer.cout {
-            let s: i64 = layer.weights[co * per..(co + 1) * per].iter().map(|&w| (w as i64).abs()).sum();
+        for co in layer.weights.chunks_exact(per) {
+            let s: i64 = co.iter().map(|&w| (w as i64).abs()).sum();
             if s > 65535 {
                 return Err(Error::BadParameter {
                     what: "fixed-point conv weights",

@@ -280,9 +280,9 @@ pub fn composite_grad(
     )?;
     let (w, h) = (full.width, full.height);
     versions!(isa, || {
+        // `na` may be 0 (no channels at all): then there is nothing to zero.
         for r in 0..d_alpha.height() {
-            d_alpha.row_mut(0, r).fill(0.0);
-            for a in 1..na {
+            for a in 0..na {
                 d_alpha.row_mut(a, r).fill(0.0);
             }
         }

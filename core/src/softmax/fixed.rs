@@ -125,9 +125,11 @@ fn pixel_direct(inp: &FusedInputs<'_, i16>, y: usize, x: usize) -> [i64; MAX_CHA
 pub(crate) fn boxsum_scratch_len(sizes: &[usize], channels: usize, width: usize) -> usize {
     let rmax = sizes.iter().copied().max().unwrap_or(1) / 2;
     let tw = width.min(TILE_W);
-    let tables = (1 + channels) * (TILE_H + 2 * rmax + 1) * (tw + 2 * rmax + 1);
+    let halo = rmax.saturating_mul(2).saturating_add(1);
+    let tables = crate::sat_prod(&[channels.saturating_add(1), TILE_H.saturating_add(halo), tw.saturating_add(halo)]);
+    let tile = crate::sat_prod(&[channels.saturating_add(sizes.len()), TILE_H, tw]);
     // +1: the i64 tables start on an 8-byte boundary inside the f32 scratch.
-    2 * (tables + (channels + sizes.len()) * TILE_H * tw) + 1
+    crate::sat_sum(&[crate::sat_prod(&[2, tables.saturating_add(tile)]), 1])
 }
 
 pub(crate) fn fused(

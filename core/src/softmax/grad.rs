@@ -167,7 +167,7 @@ pub fn fused_grad_scratch_len(m: usize, channels: usize, width: usize) -> usize 
     // e', the horizontal sums (1 + C), D' and N (1 + C), R (C), u and v
     // (C + 1), their horizontal and vertical sums (2 (C + 1)), alpha (M),
     // d_k (M) and a fallback mask.
-    let planes = 1 + (1 + channels) + (1 + channels) + channels + 3 * (channels + 1) + 2 * m + 1;
+    let planes = channels.saturating_mul(6).saturating_add(m.saturating_mul(2)).saturating_add(7); // 7 + 6 C + 2 M
     planes.saturating_mul(region_cap(width)).saturating_add(row_len(width))
 }
 

@@ -56,7 +56,7 @@ pub(crate) fn ring_row(w: usize, p: usize) -> usize {
 /// channel pair and tap (at least the tap-pair packing's
 /// `cout * ceil(cin k^2 / 2)` the AVX-512 kernel uses).
 pub(crate) fn weight_words(k: usize, cin: usize, cout: usize) -> usize {
-    cout.saturating_mul(cin.div_ceil(2)).saturating_mul(k * k)
+    cout.saturating_mul(cin.div_ceil(2)).saturating_mul(k.saturating_mul(k))
 }
 
 /// Scratch words of the fixed-point convolution: the weight pairs, then the

@@ -70,7 +70,7 @@ pub(crate) unsafe fn reduce<S: FloatElement>(op: Reduce, src: &View<'_, S>, dst:
                 xc += 8;
             }
         }
-        scalar::reduce::<S, f32>(op, src, &mut dst.rows_mut(yo, 1), yc, vec_end);
+        scalar::reduce::<S, f32>(op, src, &mut dst.rows_mut_clamped(yo, 1), yc, vec_end);
     }
 }
 
@@ -98,7 +98,7 @@ pub(crate) unsafe fn upsample<S: FloatElement>(src: &View<'_, S>, dst: &mut View
                 x += 16;
             }
         }
-        scalar::upsample(src, &mut dst.rows_mut(yo, 1), y, vec_end);
+        scalar::upsample(src, &mut dst.rows_mut_clamped(yo, 1), y, vec_end);
     }
 }
 
@@ -176,9 +176,9 @@ pub(crate) unsafe fn composite<S: FloatElement>(
                 x += 16;
             }
         }
-        scalar::composite::<S, f32>(fine, coarse, alpha, &mut dst.rows_mut(yo, 1), y, vec_end);
+        scalar::composite::<S, f32>(fine, coarse, alpha, &mut dst.rows_mut_clamped(yo, 1), y, vec_end);
         if pair {
-            scalar::composite::<S, f32>(fine, coarse, alpha, &mut dst.rows_mut(yo + 1, 1), y + 1, vec_end);
+            scalar::composite::<S, f32>(fine, coarse, alpha, &mut dst.rows_mut_clamped(yo + 1, 1), y + 1, vec_end);
             yo += 2;
         } else {
             yo += 1;

@@ -131,19 +131,31 @@ pub(crate) fn boxsum_scratch_len(sizes: &[usize], channels: usize, width: usize)
     let th = TILE_H;
     // Carried rows: the tile, its halo, and up to k - 1 rows more so that the
     // prefix/suffix blocks start on absolute multiples of k.
-    let t = th + 4 * rmax;
-    let l = tw + 2 * rmax;
-    let np = 1 + channels;
+    let t = th.saturating_add(rmax.saturating_mul(4));
+    let l = tw.saturating_add(rmax.saturating_mul(2));
+    let np = channels.saturating_add(1);
     let m = sizes.len();
-    channels * th * tw + m * th * tw + 2 * np * t * l + np * l + tw + 3 * np * l
+    crate::sat_sum(&[
+        crate::sat_prod(&[channels, th, tw]),
+        crate::sat_prod(&[m, th, tw]),
+        crate::sat_prod(&[2, np, t, l]),
+        crate::sat_prod(&[np, l]),
+        tw,
+        crate::sat_prod(&[3, np, l]),
+    ])
 }
 
 /// Scratch words of the separable path.
 pub(crate) fn separable_scratch_len(sizes: &[usize], channels: usize, width: usize) -> usize {
     let kmax = sizes.iter().copied().max().unwrap_or(1);
     let tw = width.min(SEP_TW);
-    let np = 1 + channels;
-    (channels + sizes.len()) * TILE_H * tw + kmax * SEP_SS + np * SEP_LS + tw
+    let np = channels.saturating_add(1);
+    crate::sat_sum(&[
+        crate::sat_prod(&[channels.saturating_add(sizes.len()), TILE_H, tw]),
+        kmax.saturating_mul(SEP_SS),
+        np.saturating_mul(SEP_LS),
+        tw,
+    ])
 }
 
 pub(crate) fn fused<S: FloatElement>(

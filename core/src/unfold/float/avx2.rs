@@ -32,7 +32,7 @@ pub(crate) fn scratch_len(k: usize, channels: usize, width: usize, f16: bool) ->
     let row = channels.saturating_mul(width);
     // Two row accumulators (ping-pong between tap rows), then the ring.
     if f16 {
-        row.saturating_mul(k + 2)
+        row.saturating_mul(k.saturating_add(2))
     } else {
         row.saturating_mul(2)
     }

@@ -21,8 +21,9 @@
 //! `Var(D_i) = Var(c_i) (1 - 2 w_centre) + Var(c_{i+1})` per channel.
 //!
 //! The SURE of linear shrinkage is summed over a 5x5 window and the three
-//! channels; [`mcdenoise_core::atrous::sure_pick`] picks per pixel and level
-//! from {0, 0.2, 0.4, 0.6, 0.8, 1}. With albedo, everything runs on
+//! channels; [`mcdenoise_core::atrous::sure_shrink_levels`] picks per pixel
+//! and level from {0, 0.2, 0.4, 0.6, 0.8, 1} (the rule is
+//! [`mcdenoise_core::atrous::best_beta`]). With albedo, everything runs on
 //! demodulated irradiance `c / (albedo + 0.001)`.
 
 use std::marker::PhantomData;
