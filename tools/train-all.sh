@@ -19,12 +19,12 @@ for m in $MODELS; do
     case "$m" in
         wskp6) args=(--method wskp --layers 6 --steps 6000) ;;
         wskp3) args=(--method wskp --layers 3 --steps 5000) ;;
-        afn) args=(--method afn --steps 3000) ;;
+        afn) args=(--method afn --steps 2000 --val-every 500) ;;
         afn-ta-only) args=(--method afn --variant ta-only --steps 3000) ;;
         afn-1spp-only) args=(--method afn --variant 1spp-only --steps 3000) ;;
         *) echo "unknown model $m" >&2; exit 2 ;;
     esac
     echo "[train-all] $m: ${args[*]}"
-    "$BIN" train "${args[@]}" "${common[@]}" --log "$OUT/$m.log.csv" -o "$OUT/$m.safetensors"
+    "$BIN" train "${common[@]}" "${args[@]}" --log "$OUT/$m.log.csv" -o "$OUT/$m.safetensors"
     rm -f "$OUT/$m.safetensors.ckpt"
 done

@@ -400,8 +400,14 @@ pub fn demo(settings: &Settings) -> Result<()> {
         settings.isa.name()
     );
     println!("{:<14} {:>10} {:>10} {:>10} {:>8}", "method", "ms/frame", "PSNR dB", "relMSE", "SSIM");
-    for m in MethodKind::ALL {
-        let outdir = out_root.join(m.name());
+    // WSKP runs twice, with each bundled ImportanceNet.
+    let runs = MethodKind::ALL.into_iter().flat_map(|m| match m {
+        MethodKind::Wskp => vec![(m, 3, "wskp-3"), (m, 6, "wskp-6")],
+        _ => vec![(m, settings.layers, m.name())],
+    });
+    for (m, layers, name) in runs {
+        let settings = &Settings { layers, ..settings.clone() };
+        let outdir = out_root.join(name);
         let mut scores = Vec::new();
         let mut err = None;
         let opts = SequenceOptions { png: true, ..SequenceOptions::default() };
@@ -421,7 +427,7 @@ pub fn demo(settings: &Settings) -> Result<()> {
         let rep = match rep {
             Ok(r) => r,
             Err(e) => {
-                println!("{:<14} skipped: {e}", m.name());
+                println!("{name:<14} skipped: {e}");
                 continue;
             }
         };
@@ -431,7 +437,7 @@ pub fn demo(settings: &Settings) -> Result<()> {
         let s = mean_scores(&scores);
         println!(
             "{:<14} {:>10.3} {:>10.3} {:>10.5} {:>8.4}",
-            m.name(),
+            name,
             ms(rep.timings.total()) / rep.frames.max(1) as f64,
             s.psnr,
             s.relmse,

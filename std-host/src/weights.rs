@@ -7,7 +7,8 @@ use std::path::Path;
 use crate::error::{HostError, Result};
 use crate::nn::weights::File;
 
-/// The 6-layer ImportanceNet, trained by `tools/train-all.sh` (docs/training.md).
+/// The 3- and 6-layer ImportanceNets, trained by `tools/train-all.sh` (docs/training.md).
+const WSKP3: &[u8] = include_bytes!("../weights/wskp3.safetensors");
 const WSKP6: &[u8] = include_bytes!("../weights/wskp6.safetensors");
 
 /// WSKP's weights for `layers` layers.
@@ -16,6 +17,7 @@ pub fn wskp(path: Option<&Path>, layers: usize) -> Result<File> {
         return File::read(p);
     }
     let bundled: Option<&'static [u8]> = match layers {
+        3 => Some(WSKP3),
         6 => Some(WSKP6),
         _ => None,
     };
