@@ -309,7 +309,7 @@ impl<P: HostPrecision> Atrous<P> {
         // frame's own f32 data when that is the precision).
         let (noise_g, normal_g, position_g, depth_g, c0) = t.time("guides", || {
             (
-                Held::new::<P>(&bf.noise, 1, w, h, Kind::Plain),
+                Held::new::<P>(&bf.noise, 1, w, h, Kind::Image),
                 normal.map(|d| Held::new::<P>(d, 3, w, h, Kind::Unit)),
                 position.map(|d| Held::new::<P>(d, 3, w, h, Kind::Plain)),
                 depth.map(|d| Held::new::<P>(d, 1, w, h, Kind::Plain)),
