@@ -10,6 +10,8 @@ use crate::nn::weights::File;
 /// The 3- and 6-layer ImportanceNets, trained by `tools/train-all.sh` (docs/training.md).
 const WSKP3: &[u8] = include_bytes!("../weights/wskp3.safetensors");
 const WSKP6: &[u8] = include_bytes!("../weights/wskp6.safetensors");
+/// AFN's kernel predictor and refinement network, trained the same way.
+const AFN: &[u8] = include_bytes!("../weights/afn.safetensors");
 
 /// WSKP's weights for `layers` layers.
 pub fn wskp(path: Option<&Path>, layers: usize) -> Result<File> {
@@ -34,13 +36,5 @@ pub fn afn(path: Option<&Path>) -> Result<File> {
     if let Some(p) = path {
         return File::read(p);
     }
-    // Filled in when trained weights are bundled.
-    let bundled: Option<&'static [u8]> = None;
-    match bundled {
-        Some(b) => File::from_bytes(b.to_vec(), Path::new("<bundled afn>")),
-        None => Err(HostError::Usage(
-            "afn: no bundled weights in this build; pass --weights FILE (made by 'mcdenoise train --method afn')"
-                .into(),
-        )),
-    }
+    File::from_bytes(AFN.to_vec(), Path::new("<bundled afn>"))
 }
