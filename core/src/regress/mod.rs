@@ -1,0 +1,688 @@
+//! Cross-regression (Choi et al. 2024, "Online Neural Denoising with
+//! Cross-Regression for Interactive Rendering") and its spatiotemporal
+//! cross-bilateral filter, in f32.
+//!
+//! **Variance** ([`variance_rows`]): per pixel, `sum_c (y_c - m_c)^2` with `m`
+//! the mean of the pixel's 3x3 neighbours inside the image, the pixel itself
+//! left out (0 when it has none).
+//!
+//! **Cross-regression** ([`regression_rows`]): two half-sample images; the
+//! features come from one (`x`, with its variance) and the fitted values
+//! from the other (`y`). A centre sits on every 4th pixel in x and y
+//! (`(4i, 4j)`, 1/16 of the pixels). At a centre `c`, over the 17x17 window
+//! (coordinates mirrored at the image border, `-1 -> 1`), each colour channel
+//! `k` is fitted separately with the design row
+//! `[1, (x_i,k - x_c,k) / (s_i + s_c + 0.01), a_i,k - a_c,k, n_i - n_c (3)]`
+//! (`s = sqrt(variance)`, `a` albedo, `n` normal: six columns, as in the
+//! authors' code), weight `w_ci = exp(-|x_i - x_c|^2 / (v_c + v_i + 1e-4)) +
+//! 1e-7`, and the normal equations `(X^T W X + 1e-3 I) b = X^T W y_k` solved
+//! in place by Cholesky. A pixel `p` then blends the predictions
+//! `b_c . row(p - c)` of every centre within +-8 px (inside the image) with the
+//! same weight `w_cp`, and the result is clamped to `>= 0`.
+//! The centres' coefficients live in a ring of five centre rows in the
+//! caller's scratch ([`regression_scratch_len`]): each is solved once per
+//! band, and bands give bit-identical results whatever their split.
+//!
+//! **Filter** ([`filter_rows`], backward [`filter_grad_rows`]): per pixel
+//! six raw network outputs `r`: five bandwidths used as `k_j = 1 / (r_j^2 +
+//! 1e-4)` (pilot A colour, pilot B colour, albedo, normal, pixel distance) and
+//! `alpha = sigmoid(r_5)`. Over the 11x11 window (mirrored), for pilot `X`:
+//! `w_i = exp(-(k_X |f_i - f_c|^2 + k_2 |a_i - a_c|^2 + k_3 |n_i - n_c|^2 +
+//! k_4 |p_i - p_c|^2 / 25))`, `S_X = sum w_i f_i`, `W_X = sum w_i` (>= 1: the
+//! centre weighs 1), spatial `s_X = S_X / W_X`, both combined
+//! `s = (S_A + S_B) / (W_A + W_B)`. With the warped previous output `q` and
+//! its validity `v` in `[0, 1]`: `a = v alpha + 1 - v`, and the outputs are
+//! `a s_X + (1 - a) q` (A, B) and `a s + (1 - a) q` (combined). The backward
+//! pass maps gradients of the two per-pilot outputs (what the loss sees) to
+//! the six raw outputs.
+
+use crate::error::{check_scratch, check_shape, Error, Result, Shape};
+use crate::math::scalar::exp_select;
+use crate::unfold::check_band;
+use crate::view::{View, ViewMut};
+use crate::Isa;
+
+/// Regression window side (17x17).
+pub const REG_WINDOW: usize = 17;
+/// Half of it.
+pub const REG_RADIUS: usize = REG_WINDOW / 2;
+/// A centre every this many pixels in x and y.
+pub const SPARSITY: usize = 4;
+/// Coefficients per colour channel (design columns).
+pub const COEFFS: usize = 6;
+/// Ridge added to the normal equations' diagonal.
+pub const RIDGE: f32 = 1e-3;
+/// Filter window side (11x11).
+pub const FILTER_WINDOW: usize = 11;
+/// Half of it.
+pub const FILTER_RADIUS: usize = FILTER_WINDOW / 2;
+/// Raw network outputs the filter reads per pixel.
+pub const PARAMS: usize = 6;
+/// Added to `r^2` before the reciprocal that makes a bandwidth.
+pub const BAND_EPS: f32 = 1e-4;
+
+/// Index `i` mirrored into `0..n` (`-1 -> 1`, `n -> n - 2`), periodically for
+/// windows wider than the image.
+#[inline]
+pub fn mirror(i: isize, n: usize) -> usize {
+    if n <= 1 {
+        return 0;
+    }
+    let p = 2 * (n as isize - 1);
+    let m = i.rem_euclid(p);
+    if m >= n as isize {
+        (p - m) as usize
+    } else {
+        m as usize
+    }
+}
+
+/// Centres along a side of `n` pixels.
+pub fn centres(n: usize) -> usize {
+    n.div_ceil(SPARSITY)
+}
+
+/// `k = 1 / (r^2 + 1e-4)`.
+#[inline(always)]
+pub fn bandwidth(r: f32) -> f32 {
+    1.0 / (r * r + BAND_EPS)
+}
+
+/// `1 / (1 + e^-r)`.
+#[inline(always)]
+pub fn sigmoid(r: f32) -> f32 {
+    1.0 / (1.0 + exp_select(-r))
+}
+
+// ---- variance ---------------------------------------------------------------
+
+/// The per-pixel variance estimate of `src` (3 planes) for rows `y0 ..
+/// y0 + out.height()` into `out` (1 plane).
+pub fn variance_rows(isa: Isa, src: &View<'_, f32>, out: &mut ViewMut<'_, f32>, y0: usize) -> Result<()> {
+    let isa = isa.check()?;
+    let s = src.shape();
+    if s.channels != 3 {
+        return Err(Error::BadParameter { what: "variance source", expected: "3 colour planes" });
+    }
+    check_band("variance", Shape::new(1, s.width, s.height), out.shape(), y0)?;
+    let (w, h) = (s.width, s.height);
+    versions!(isa, || {
+        for yo in 0..out.height() {
+            let y = y0 + yo;
+            let (ya, yb) = (y.saturating_sub(1), (y + 1).min(h - 1));
+            for x in 0..w {
+                let (xa, xb) = (x.saturating_sub(1), (x + 1).min(w - 1));
+                let count = ((yb - ya + 1) * (xb - xa + 1) - 1) as f32;
+                let mut v = 0.0f32;
+                if count > 0.0 {
+                    for c in 0..3 {
+                        let centre = src.row(c, y)[x];
+                        let mut sum = 0.0f32;
+                        for yy in ya..=yb {
+                            let r = src.row(c, yy);
+                            for xx in xa..=xb {
+                                sum += r[xx];
+                            }
+                        }
+                        let m = (sum - centre) / count;
+                        v += (m - centre) * (m - centre);
+                    }
+                }
+                out.row_mut(0, yo)[x] = v;
+            }
+        }
+    });
+    Ok(())
+}
+
+// ---- cross-regression ----------------------------------------------------------
+
+/// The buffers of one cross-regression.
+#[derive(Clone, Copy, Debug)]
+pub struct RegressionInputs<'a> {
+    /// The image the features and weights come from (3 planes, log colour).
+    pub x: View<'a, f32>,
+    /// Its per-pixel variance ([`variance_rows`], 1 plane).
+    pub var: View<'a, f32>,
+    /// The image whose colours are fitted (3 planes).
+    pub y: View<'a, f32>,
+    /// Albedo (3 planes).
+    pub albedo: View<'a, f32>,
+    /// Normal (3 planes).
+    pub normal: View<'a, f32>,
+}
+
+impl RegressionInputs<'_> {
+    fn check(&self) -> Result<Shape> {
+        let s = self.x.shape();
+        let three = Shape::new(3, s.width, s.height);
+        check_shape("regression features", three, s)?;
+        check_shape("regression variance", Shape::new(1, s.width, s.height), self.var.shape())?;
+        check_shape("regression target", three, self.y.shape())?;
+        check_shape("regression albedo", three, self.albedo.shape())?;
+        check_shape("regression normal", three, self.normal.shape())?;
+        Ok(s)
+    }
+}
+
+/// Coefficients stored per centre: `COEFFS` per colour channel.
+const PER_CENTRE: usize = 3 * COEFFS;
+/// Centre rows a pixel row can see (`+-8` px at a spacing of 4).
+const RING: usize = 2 * REG_RADIUS / SPARSITY + 1;
+
+/// Scratch words for [`regression_rows`] on an image `width` wide.
+pub fn regression_scratch_len(width: usize) -> usize {
+    RING * centres(width) * PER_CENTRE
+}
+
+/// One pixel's values the regression reads.
+#[derive(Clone, Copy)]
+struct Px {
+    x: [f32; 3],
+    a: [f32; 3],
+    n: [f32; 3],
+    var: f32,
+    sd: f32,
+}
+
+#[inline(always)]
+fn px(inp: &RegressionInputs<'_>, y: usize, x: usize) -> Px {
+    let var = inp.var.row(0, y)[x];
+    Px {
+        x: [inp.x.row(0, y)[x], inp.x.row(1, y)[x], inp.x.row(2, y)[x]],
+        a: [inp.albedo.row(0, y)[x], inp.albedo.row(1, y)[x], inp.albedo.row(2, y)[x]],
+        n: [inp.normal.row(0, y)[x], inp.normal.row(1, y)[x], inp.normal.row(2, y)[x]],
+        var,
+        sd: libm::sqrtf(var.max(0.0)),
+    }
+}
+
+/// The regression weight of pixel `i` for centre `c` (and of centre `c` for
+/// pixel `i` in the reconstruction).
+#[inline(always)]
+fn reg_weight(c: &Px, i: &Px) -> f32 {
+    let mut d = 0.0f32;
+    for k in 0..3 {
+        let t = i.x[k] - c.x[k];
+        d += t * t;
+    }
+    exp_select(-d / (c.var + i.var + 1e-4)) + 1e-7
+}
+
+/// The design row of pixel `i` relative to centre `c` for channel `k`.
+#[inline(always)]
+fn design(c: &Px, i: &Px, k: usize) -> [f32; COEFFS] {
+    [1.0, (i.x[k] - c.x[k]) / (c.sd + i.sd + 0.01), i.a[k] - c.a[k], i.n[0] - c.n[0], i.n[1] - c.n[1], i.n[2] - c.n[2]]
+}
+
+/// Solves `(A + RIDGE I) b = r` for a symmetric positive `A` (upper triangle
+/// given, row-major) by Cholesky in place.
+#[inline]
+fn solve(a: &mut [f32; COEFFS * COEFFS], r: &[f32; COEFFS]) -> [f32; COEFFS] {
+    const P: usize = COEFFS;
+    for i in 0..P {
+        a[i * P + i] += RIDGE;
+        for j in 0..i {
+            a[i * P + j] = a[j * P + i];
+        }
+    }
+    // L in the lower triangle (a pivot that rounding made non-positive is
+    // floored, as the authors' code does).
+    for i in 0..P {
+        for j in 0..=i {
+            let mut s = a[i * P + j];
+            for k in 0..j {
+                s -= a[i * P + k] * a[j * P + k];
+            }
+            a[i * P + j] = if i == j { libm::sqrtf(s.max(1e-5)) } else { s / a[j * P + j] };
+        }
+    }
+    let mut z = [0.0f32; P];
+    for i in 0..P {
+        let mut s = r[i];
+        for k in 0..i {
+            s -= a[i * P + k] * z[k];
+        }
+        z[i] = s / a[i * P + i];
+    }
+    let mut b = [0.0f32; P];
+    for i in (0..P).rev() {
+        let mut s = z[i];
+        for k in i + 1..P {
+            s -= a[k * P + i] * b[k];
+        }
+        b[i] = s / a[i * P + i];
+    }
+    if b.iter().all(|v| v.is_finite()) {
+        b
+    } else {
+        [0.0; P]
+    }
+}
+
+/// Solves the centre at pixel `(cx, cy)` into `out` (`PER_CENTRE` words).
+fn solve_centre(inp: &RegressionInputs<'_>, cx: usize, cy: usize, out: &mut [f32]) {
+    let (w, h) = (inp.x.width(), inp.x.height());
+    let c = px(inp, cy, cx);
+    let mut gram = [[0.0f32; COEFFS * COEFFS]; 3];
+    let mut rhs = [[0.0f32; COEFFS]; 3];
+    let r = REG_RADIUS as isize;
+    for dy in -r..=r {
+        let y = mirror(cy as isize + dy, h);
+        for dx in -r..=r {
+            let x = mirror(cx as isize + dx, w);
+            let i = px(inp, y, x);
+            let wt = reg_weight(&c, &i);
+            for k in 0..3 {
+                let d = design(&c, &i, k);
+                let yk = inp.y.row(k, y)[x];
+                let g = &mut gram[k];
+                for p in 0..COEFFS {
+                    let wd = wt * d[p];
+                    for q in p..COEFFS {
+                        g[p * COEFFS + q] += wd * d[q];
+                    }
+                    rhs[k][p] += wd * yk;
+                }
+            }
+        }
+    }
+    for k in 0..3 {
+        let b = solve(&mut gram[k], &rhs[k]);
+        out[k * COEFFS..(k + 1) * COEFFS].copy_from_slice(&b);
+    }
+}
+
+/// The cross-regression's pilot estimate for rows `y0 .. y0 + out.height()`
+/// into `out` (3 planes): centres solved on demand into a ring in `scratch`
+/// ([`regression_scratch_len`]), then every pixel blended from the centres
+/// within +-8 px.
+pub fn regression_rows(
+    isa: Isa,
+    inp: &RegressionInputs<'_>,
+    out: &mut ViewMut<'_, f32>,
+    y0: usize,
+    scratch: &mut [f32],
+) -> Result<()> {
+    let isa = isa.check()?;
+    let s = inp.check()?;
+    check_band("regression output", s, out.shape(), y0)?;
+    let (w, h) = (s.width, s.height);
+    let ncx = centres(w);
+    let row_len = ncx * PER_CENTRE;
+    check_scratch(regression_scratch_len(w), scratch.len())?;
+    if out.height() == 0 || w == 0 {
+        return Ok(());
+    }
+    let ncy = centres(h);
+    let ring = &mut scratch[..RING * row_len];
+    versions!(isa, || {
+        let mut held = [usize::MAX; RING];
+        let r = REG_RADIUS as isize;
+        for yo in 0..out.height() {
+            let y = y0 + yo;
+            // Centre rows j with |4j - y| <= 8, inside the image.
+            let jlo = (y as isize - r).max(0) as usize;
+            let jlo = jlo.div_ceil(SPARSITY);
+            let jhi = ((y + REG_RADIUS) / SPARSITY).min(ncy - 1);
+            for j in jlo..=jhi {
+                let slot = j % RING;
+                if held[slot] != j {
+                    let dst = &mut ring[slot * row_len..(slot + 1) * row_len];
+                    for i in 0..ncx {
+                        solve_centre(inp, i * SPARSITY, j * SPARSITY, &mut dst[i * PER_CENTRE..(i + 1) * PER_CENTRE]);
+                    }
+                    held[slot] = j;
+                }
+            }
+            for x in 0..w {
+                let p = px(inp, y, x);
+                let ilo = (x as isize - r).max(0) as usize;
+                let ilo = ilo.div_ceil(SPARSITY);
+                let ihi = ((x + REG_RADIUS) / SPARSITY).min(ncx - 1);
+                let mut acc = [0.0f32; 3];
+                let mut wsum = 0.0f32;
+                for j in jlo..=jhi {
+                    let coeffs = &ring[(j % RING) * row_len..];
+                    for i in ilo..=ihi {
+                        let c = px(inp, j * SPARSITY, i * SPARSITY);
+                        let wt = reg_weight(&c, &p);
+                        wsum += wt;
+                        let b = &coeffs[i * PER_CENTRE..(i + 1) * PER_CENTRE];
+                        for k in 0..3 {
+                            let d = design(&c, &p, k);
+                            let mut pred = 0.0f32;
+                            for q in 0..COEFFS {
+                                pred += b[k * COEFFS + q] * d[q];
+                            }
+                            acc[k] += wt * pred;
+                        }
+                    }
+                }
+                let inv = 1.0 / wsum.max(1e-7);
+                for k in 0..3 {
+                    out.row_mut(k, yo)[x] = (acc[k] * inv).max(0.0);
+                }
+            }
+        }
+    });
+    Ok(())
+}
+
+// ---- spatiotemporal filter ----------------------------------------------------------
+
+/// The buffers of the spatiotemporal filter (all full-frame).
+#[derive(Clone, Copy, Debug)]
+pub struct FilterInputs<'a> {
+    /// Pilot estimate A (3 planes).
+    pub pilot_a: View<'a, f32>,
+    /// Pilot estimate B (3 planes).
+    pub pilot_b: View<'a, f32>,
+    /// Albedo (3 planes).
+    pub albedo: View<'a, f32>,
+    /// Normal (3 planes).
+    pub normal: View<'a, f32>,
+    /// The warped previous output (3 planes).
+    pub prev: View<'a, f32>,
+    /// Its validity in `[0, 1]` (1 plane; 0: no history, the spatial result alone).
+    pub valid: View<'a, f32>,
+}
+
+impl FilterInputs<'_> {
+    fn check(&self) -> Result<Shape> {
+        let s = self.pilot_a.shape();
+        let three = Shape::new(3, s.width, s.height);
+        check_shape("filter pilot A", three, s)?;
+        check_shape("filter pilot B", three, self.pilot_b.shape())?;
+        check_shape("filter albedo", three, self.albedo.shape())?;
+        check_shape("filter normal", three, self.normal.shape())?;
+        check_shape("filter previous output", three, self.prev.shape())?;
+        check_shape("filter validity", Shape::new(1, s.width, s.height), self.valid.shape())?;
+        Ok(s)
+    }
+}
+
+/// Guide planes copied per window row: pilot A, pilot B, albedo, normal.
+const GUIDES: usize = 12;
+/// Pixels per chunk (accumulators on the stack).
+const CHUNK: usize = 64;
+
+/// Scratch words for [`filter_rows`] and [`filter_grad_rows`] on an image
+/// `width` wide: the 11 window rows of the 12 guide planes, mirrored and
+/// padded by 5 on each side.
+pub fn filter_scratch_len(width: usize) -> usize {
+    FILTER_WINDOW * GUIDES * (width + 2 * FILTER_RADIUS)
+}
+
+/// Copies the mirrored window rows of output row `y` into `rows`.
+fn fill_rows(inp: &FilterInputs<'_>, y: usize, rows: &mut [f32]) {
+    let (w, h) = (inp.pilot_a.width(), inp.pilot_a.height());
+    let pw = w + 2 * FILTER_RADIUS;
+    let r = FILTER_RADIUS as isize;
+    for (t, dy) in (-r..=r).enumerate() {
+        let sy = mirror(y as isize + dy, h);
+        for g in 0..GUIDES {
+            let src = match g / 3 {
+                0 => inp.pilot_a.row(g % 3, sy),
+                1 => inp.pilot_b.row(g % 3, sy),
+                2 => inp.albedo.row(g % 3, sy),
+                _ => inp.normal.row(g % 3, sy),
+            };
+            let dst = &mut rows[(t * GUIDES + g) * pw..(t * GUIDES + g + 1) * pw];
+            dst[FILTER_RADIUS..FILTER_RADIUS + w].copy_from_slice(src);
+            for i in 0..FILTER_RADIUS {
+                dst[i] = src[mirror(i as isize - r, w)];
+                dst[FILTER_RADIUS + w + i] = src[mirror((w + i) as isize, w)];
+            }
+        }
+    }
+}
+
+/// Window sums of one chunk: `S_A (3), W_A, S_B (3), W_B` (the backward
+/// pass sums `w (f_i - f_c)` instead of `w f_i`) and, for the
+/// backward pass, per pilot `T_j = sum w D_j (g . (f_i - f_c))` and `U_j = sum w D_j`
+/// for the four terms `j` (own colour, albedo, normal, distance).
+struct Sums {
+    s: [[f32; CHUNK]; 8],
+    t: [[f32; CHUNK]; 16],
+}
+
+/// Runs the window over one chunk of row `y` (pixels `x0 .. x0 + n`).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn window<const GRAD: bool>(
+    rows: &[f32],
+    pw: usize,
+    x0: usize,
+    n: usize,
+    k: &[[f32; CHUNK]; 5],
+    g: &[[f32; CHUNK]; 6],
+    sums: &mut Sums,
+) {
+    let r = FILTER_RADIUS as isize;
+    let centre = |gd: usize, i: usize| rows[(FILTER_RADIUS * GUIDES + gd) * pw + FILTER_RADIUS + x0 + i];
+    let mut c = [[0.0f32; CHUNK]; GUIDES];
+    for gd in 0..GUIDES {
+        for i in 0..n {
+            c[gd][i] = centre(gd, i);
+        }
+    }
+    for a in sums.s.iter_mut() {
+        a[..n].fill(0.0);
+    }
+    if GRAD {
+        for a in sums.t.iter_mut() {
+            a[..n].fill(0.0);
+        }
+    }
+    for (t, dy) in (-r..=r).enumerate() {
+        let base = t * GUIDES * pw;
+        let plane = |gd: usize| &rows[base + gd * pw + x0..base + gd * pw + x0 + n + 2 * FILTER_RADIUS];
+        let (a0, a1, a2) = (plane(0), plane(1), plane(2));
+        let (b0, b1, b2) = (plane(3), plane(4), plane(5));
+        let (l0, l1, l2) = (plane(6), plane(7), plane(8));
+        let (n0, n1, n2) = (plane(9), plane(10), plane(11));
+        for (u, dx) in (-r..=r).enumerate() {
+            let pd = ((dx * dx + dy * dy) as f32) / ((FILTER_RADIUS * FILTER_RADIUS) as f32);
+            for i in 0..n {
+                let j = i + u;
+                let sq = |v: f32| v * v;
+                let da = sq(a0[j] - c[0][i]) + sq(a1[j] - c[1][i]) + sq(a2[j] - c[2][i]);
+                let db = sq(b0[j] - c[3][i]) + sq(b1[j] - c[4][i]) + sq(b2[j] - c[5][i]);
+                let dl = sq(l0[j] - c[6][i]) + sq(l1[j] - c[7][i]) + sq(l2[j] - c[8][i]);
+                let dn = sq(n0[j] - c[9][i]) + sq(n1[j] - c[10][i]) + sq(n2[j] - c[11][i]);
+                let common = k[2][i] * dl + k[3][i] * dn + k[4][i] * pd;
+                let wa = exp_select(-(k[0][i] * da + common));
+                let wb = exp_select(-(k[1][i] * db + common));
+                if GRAD {
+                    // Relative to the centre (the backward pass needs s - f_c).
+                    sums.s[0][i] += wa * (a0[j] - c[0][i]);
+                    sums.s[1][i] += wa * (a1[j] - c[1][i]);
+                    sums.s[2][i] += wa * (a2[j] - c[2][i]);
+                    sums.s[4][i] += wb * (b0[j] - c[3][i]);
+                    sums.s[5][i] += wb * (b1[j] - c[4][i]);
+                    sums.s[6][i] += wb * (b2[j] - c[5][i]);
+                } else {
+                    sums.s[0][i] += wa * a0[j];
+                    sums.s[1][i] += wa * a1[j];
+                    sums.s[2][i] += wa * a2[j];
+                    sums.s[4][i] += wb * b0[j];
+                    sums.s[5][i] += wb * b1[j];
+                    sums.s[6][i] += wb * b2[j];
+                }
+                sums.s[3][i] += wa;
+                sums.s[7][i] += wb;
+                if GRAD {
+                    // g . (f_i - f_c): relative to the centre, so that a flat
+                    // window cancels exactly.
+                    let gfa = g[0][i] * (a0[j] - c[0][i]) + g[1][i] * (a1[j] - c[1][i]) + g[2][i] * (a2[j] - c[2][i]);
+                    let gfb = g[3][i] * (b0[j] - c[3][i]) + g[4][i] * (b1[j] - c[4][i]) + g[5][i] * (b2[j] - c[5][i]);
+                    let (wda, wdb) = (wa * da, wb * db);
+                    let (wla, wna, wpa) = (wa * dl, wa * dn, wa * pd);
+                    let (wlb, wnb, wpb) = (wb * dl, wb * dn, wb * pd);
+                    sums.t[0][i] += wda * gfa;
+                    sums.t[1][i] += wla * gfa;
+                    sums.t[2][i] += wna * gfa;
+                    sums.t[3][i] += wpa * gfa;
+                    sums.t[4][i] += wda;
+                    sums.t[5][i] += wla;
+                    sums.t[6][i] += wna;
+                    sums.t[7][i] += wpa;
+                    sums.t[8][i] += wdb * gfb;
+                    sums.t[9][i] += wlb * gfb;
+                    sums.t[10][i] += wnb * gfb;
+                    sums.t[11][i] += wpb * gfb;
+                    sums.t[12][i] += wdb;
+                    sums.t[13][i] += wlb;
+                    sums.t[14][i] += wnb;
+                    sums.t[15][i] += wpb;
+                }
+            }
+        }
+    }
+}
+
+fn check_params(what: &'static str, s: Shape, v: Shape, y0: usize, c: usize) -> Result<()> {
+    check_band(what, Shape::new(c, s.width, s.height), v, y0)
+}
+
+/// The filter for rows `y0 .. y0 + out.height()`: `params` holds the six raw
+/// network outputs of those rows, `out` gets 9 planes (output A, output B,
+/// combined output). `scratch`: [`filter_scratch_len`].
+pub fn filter_rows(
+    isa: Isa,
+    inp: &FilterInputs<'_>,
+    params: &View<'_, f32>,
+    out: &mut ViewMut<'_, f32>,
+    y0: usize,
+    scratch: &mut [f32],
+) -> Result<()> {
+    let isa = isa.check()?;
+    let s = inp.check()?;
+    check_params("filter parameters", s, params.shape(), y0, PARAMS)?;
+    check_params("filter output", s, out.shape(), y0, 9)?;
+    check_scratch(filter_scratch_len(s.width), scratch.len())?;
+    let w = s.width;
+    let pw = w + 2 * FILTER_RADIUS;
+    versions!(isa, || {
+        let mut sums = Sums { s: [[0.0; CHUNK]; 8], t: [[0.0; CHUNK]; 16] };
+        let g = [[0.0f32; CHUNK]; 6];
+        for yo in 0..out.height() {
+            let y = y0 + yo;
+            fill_rows(inp, y, scratch);
+            let mut x0 = 0;
+            while x0 < w {
+                let n = CHUNK.min(w - x0);
+                let mut k = [[0.0f32; CHUNK]; 5];
+                for (j, kj) in k.iter_mut().enumerate() {
+                    let r = &params.row(j, yo)[x0..x0 + n];
+                    for i in 0..n {
+                        kj[i] = bandwidth(r[i]);
+                    }
+                }
+                window::<false>(scratch, pw, x0, n, &k, &g, &mut sums);
+                for i in 0..n {
+                    let x = x0 + i;
+                    let alpha = sigmoid(params.row(5, yo)[x]);
+                    let v = inp.valid.row(0, y)[x];
+                    let a = v * alpha + (1.0 - v);
+                    let (wa, wb) = (sums.s[3][i], sums.s[7][i]);
+                    let (ia, ib, iab) = (1.0 / wa, 1.0 / wb, 1.0 / (wa + wb));
+                    for ch in 0..3 {
+                        let q = inp.prev.row(ch, y)[x];
+                        let (sa, sb) = (sums.s[ch][i], sums.s[4 + ch][i]);
+                        out.row_mut(ch, yo)[x] = a * (sa * ia) + (1.0 - a) * q;
+                        out.row_mut(3 + ch, yo)[x] = a * (sb * ib) + (1.0 - a) * q;
+                        out.row_mut(6 + ch, yo)[x] = a * ((sa + sb) * iab) + (1.0 - a) * q;
+                    }
+                }
+                x0 += n;
+            }
+        }
+    });
+    Ok(())
+}
+
+/// The filter's backward pass for rows `y0 .. y0 + dparams.height()`:
+/// `grad` holds the loss's gradients of output A and output B (6 planes) of
+/// those rows, `dparams` gets the gradients of the six raw outputs.
+/// `scratch`: [`filter_scratch_len`].
+pub fn filter_grad_rows(
+    isa: Isa,
+    inp: &FilterInputs<'_>,
+    params: &View<'_, f32>,
+    grad: &View<'_, f32>,
+    dparams: &mut ViewMut<'_, f32>,
+    y0: usize,
+    scratch: &mut [f32],
+) -> Result<()> {
+    let isa = isa.check()?;
+    let s = inp.check()?;
+    check_params("filter parameters", s, params.shape(), y0, PARAMS)?;
+    check_params("filter output gradient", s, grad.shape(), y0, 6)?;
+    check_params("filter parameter gradient", s, dparams.shape(), y0, PARAMS)?;
+    if params.height() != dparams.height() || grad.height() != dparams.height() {
+        return Err(Error::BadParameter {
+            what: "filter gradient bands",
+            expected: "parameters, output gradient and parameter gradient of the same rows",
+        });
+    }
+    check_scratch(filter_scratch_len(s.width), scratch.len())?;
+    let w = s.width;
+    let pw = w + 2 * FILTER_RADIUS;
+    versions!(isa, || {
+        let mut sums = Sums { s: [[0.0; CHUNK]; 8], t: [[0.0; CHUNK]; 16] };
+        for yo in 0..dparams.height() {
+            let y = y0 + yo;
+            fill_rows(inp, y, scratch);
+            let mut x0 = 0;
+            while x0 < w {
+                let n = CHUNK.min(w - x0);
+                let mut k = [[0.0f32; CHUNK]; 5];
+                for (j, kj) in k.iter_mut().enumerate() {
+                    let r = &params.row(j, yo)[x0..x0 + n];
+                    for i in 0..n {
+                        kj[i] = bandwidth(r[i]);
+                    }
+                }
+                let mut g = [[0.0f32; CHUNK]; 6];
+                for (j, gj) in g.iter_mut().enumerate() {
+                    gj[..n].copy_from_slice(&grad.row(j, yo)[x0..x0 + n]);
+                }
+                window::<true>(scratch, pw, x0, n, &k, &g, &mut sums);
+                for i in 0..n {
+                    let x = x0 + i;
+                    let r5 = params.row(5, yo)[x];
+                    let alpha = sigmoid(r5);
+                    let v = inp.valid.row(0, y)[x];
+                    let a = v * alpha + (1.0 - v);
+                    let (wa, wb) = (sums.s[3][i], sums.s[7][i]);
+                    let (ia, ib) = (1.0 / wa, 1.0 / wb);
+                    // g . (s_X - f_c) and g . (s_X - q) per pilot.
+                    let (mut gsa, mut gsb, mut da) = (0.0f32, 0.0f32, 0.0f32);
+                    for ch in 0..3 {
+                        let q = inp.prev.row(ch, y)[x];
+                        // s_X - f_c from the centred sums.
+                        let (ra, rb) = (sums.s[ch][i] * ia, sums.s[4 + ch][i] * ib);
+                        gsa += g[ch][i] * ra;
+                        gsb += g[3 + ch][i] * rb;
+                        let (sa, sb) = (inp.pilot_a.row(ch, y)[x] + ra, inp.pilot_b.row(ch, y)[x] + rb);
+                        da += g[ch][i] * (sa - q) + g[3 + ch][i] * (sb - q);
+                    }
+                    // dL/dk_j = -(a / W_X) (T_j - (g . (s_X - f_c)) U_j), summed over the pilots using k_j.
+                    let ta = |j: usize| -(a * ia) * (sums.t[j][i] - gsa * sums.t[4 + j][i]);
+                    let tb = |j: usize| -(a * ib) * (sums.t[8 + j][i] - gsb * sums.t[12 + j][i]);
+                    let dk = [ta(0), tb(0), ta(1) + tb(1), ta(2) + tb(2), ta(3) + tb(3)];
+                    for j in 0..5 {
+                        let r = params.row(j, yo)[x];
+                        let kj = k[j][i];
+                        dparams.row_mut(j, yo)[x] = dk[j] * (-2.0 * r * kj * kj);
+                    }
+                    dparams.row_mut(5, yo)[x] = da * v * alpha * (1.0 - alpha);
+                }
+                x0 += n;
+            }
+        }
+    });
+    Ok(())
+}

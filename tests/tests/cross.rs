@@ -1,0 +1,307 @@
+//! Cross-regression's core operators against the f64 oracle and their
+//! identities, on every instruction set this CPU has and odd widths (1, 9,
+//! 17): the regression reproduces an exactly linear image, the filter's
+//! weights normalise (a constant image comes back unchanged), its backward
+//! pass matches central finite differences of the f64 forward oracle, bands
+//! compose bit-identically, scratch filled with garbage changes nothing,
+//! and bad shapes are errors, not panics.
+
+#![allow(clippy::needless_range_loop)]
+
+use mcdenoise::registry::{errors, op, Config, Inputs, Layout};
+use mcdenoise_core::regress::{self, FilterInputs, RegressionInputs};
+use mcdenoise_core::Isa;
+use mcdenoise_tests::{isas_under_test, oracle, Img};
+use proptest::prelude::*;
+
+fn cfg(cases: u32) -> ProptestConfig {
+    ProptestConfig { cases, ..ProptestConfig::default() }
+}
+
+fn width() -> impl Strategy<Value = usize> {
+    prop_oneof![Just(1usize), Just(9), Just(17)]
+}
+
+/// The registry's cross-regression operators against their oracles (every
+/// ISA, odd sizes, with padding), 1 and 3 threads bit-identical.
+#[test]
+fn registry_operators_match_the_oracle() {
+    let one = mcdenoise::par::Pool::new(1).unwrap();
+    let three = mcdenoise::par::Pool::new(3).unwrap();
+    let mut checked = 0;
+    for name in ["cross-variance", "cross-regression", "cross-filter", "cross-filter-grad"] {
+        let op = op(name).expect("registered");
+        for (si, &(w, h)) in [(1usize, 1usize), (9, 5), (17, 13), (1, 9), (23, 11)].iter().enumerate() {
+            let inputs = Inputs::synth(w, h, 5 + si as u64);
+            let want = (op.oracle)(&inputs, &one);
+            for &isa in &isas_under_test() {
+                for pad in [0, 3] {
+                    let cfg = Config { isa, layout: Layout { pad }, out_frac: 0 };
+                    let p = mcdenoise::precision::PrecisionKind::F32;
+                    let mut run = op.prepare(p, cfg, &inputs).unwrap();
+                    run.run(&one).unwrap();
+                    let got = run.output();
+                    assert!(run.padding_intact(), "{name} {w}x{h}: wrote into the padding");
+                    let e = errors(&got, &want, op.tolerance(p));
+                    assert!(
+                        e.worst <= 1.0,
+                        "{name} {} {w}x{h} pad {pad}: element {} is {} but the oracle says {} ({:.2}x tolerance)",
+                        isa.name(),
+                        e.at,
+                        got[e.at],
+                        want[e.at],
+                        e.worst
+                    );
+                    let mut run3 = op.prepare(p, cfg, &inputs).unwrap();
+                    run3.run(&three).unwrap();
+                    assert_eq!(
+                        got.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                        run3.output().iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                        "{name}: 3 threads differ from 1"
+                    );
+                    checked += 1;
+                }
+            }
+        }
+    }
+    assert!(checked >= 40, "ran {checked} cases");
+}
+
+/// Buffers of a regression test.
+struct Scene {
+    x: Img,
+    y: Img,
+    alb: Img,
+    nrm: Img,
+    var: Img,
+}
+
+fn variance(isa: Isa, x: &Img) -> Img {
+    let mut v = Img::zeros(1, x.w, x.h);
+    regress::variance_rows(isa, &x.view(), &mut v.view_mut(), 0).unwrap();
+    v
+}
+
+fn regression(isa: Isa, s: &Scene, y0: usize, rows: usize, garbage: f32) -> Img {
+    let mut out = Img::zeros(3, s.x.w, rows);
+    let mut scratch = vec![garbage; regress::regression_scratch_len(s.x.w)];
+    let inp = RegressionInputs {
+        x: s.x.view(),
+        var: s.var.view(),
+        y: s.y.view(),
+        albedo: s.alb.view(),
+        normal: s.nrm.view(),
+    };
+    regress::regression_rows(isa, &inp, &mut out.view_mut(), y0, &mut scratch).unwrap();
+    out
+}
+
+proptest! {
+    #![proptest_config(cfg(12))]
+
+    /// A target that is exactly linear in the design's columns (albedo and
+    /// normal here) comes back from the regression up to the 1e-3 ridge.
+    #[test]
+    fn regression_reproduces_a_linear_image(w in width(), h in 1usize..20, seed in 0u64..1000) {
+        let alb = Img::random(3, w, h, 0.1, 0.9, seed);
+        let nrm = Img::random(3, w, h, -0.6, 0.6, seed + 1);
+        let x = Img::random(3, w, h, 0.0, 2.0, seed + 2);
+        let coef = [[2.7, 0.5, 0.3, -0.2, 0.4], [2.2, -0.4, 0.1, 0.3, 0.2], [3.1, 0.8, -0.3, 0.1, -0.5]];
+        let mut y = Img::zeros(3, w, h);
+        for k in 0..3 {
+            for yy in 0..h {
+                for xx in 0..w {
+                    let c = coef[k];
+                    *y.at_mut(k, yy, xx) = c[0] + c[1] * alb.at(k, yy, xx)
+                        + c[2] * nrm.at(0, yy, xx) + c[3] * nrm.at(1, yy, xx) + c[4] * nrm.at(2, yy, xx);
+                }
+            }
+        }
+        for isa in isas_under_test() {
+            let var = variance(isa, &x);
+            let s = Scene { x: x.clone(), y: y.clone(), alb: alb.clone(), nrm: nrm.clone(), var };
+            let out = regression(isa, &s, 0, h, 0.0);
+            let peak = y.data.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            for (i, (&a, &b)) in out.data.iter().zip(&y.data).enumerate() {
+                // The ridge pulls small-variance fits toward zero slopes:
+                // bounded by a few percent of the image's range on tiny images.
+                prop_assert!((a - b).abs() <= 0.05 * peak + 1e-4, "{} {w}x{h}: element {i} {a} vs {b}", isa.name());
+            }
+        }
+    }
+
+    /// The regression over bands equals the whole image, bit for bit, and
+    /// garbage in the scratch changes nothing; it matches the f64 oracle.
+    #[test]
+    fn regression_bands_compose_and_match_the_oracle(w in width(), h in 1usize..26, seed in 0u64..1000) {
+        let x = Img::random(3, w, h, 0.0, 3.0, seed);
+        let y = Img::random(3, w, h, 0.0, 3.0, seed + 7);
+        let alb = Img::random(3, w, h, 0.05, 1.0, seed + 1);
+        let nrm = Img::random(3, w, h, -1.0, 1.0, seed + 2);
+        for isa in isas_under_test() {
+            let var = variance(isa, &x);
+            let want_var = oracle::cross_variance(&x.to_f64(), w, h);
+            for (a, b) in var.data.iter().zip(&want_var) {
+                prop_assert!((*a as f64 - b).abs() <= 1e-5 * (1.0 + b.abs()));
+            }
+            let s = Scene { x: x.clone(), y: y.clone(), alb: alb.clone(), nrm: nrm.clone(), var };
+            let whole = regression(isa, &s, 0, h, 0.0);
+            let split = h / 2 + 1;
+            let (top, bottom) = (regression(isa, &s, 0, split.min(h), f32::NAN), regression(isa, &s, split.min(h), h - split.min(h), 1e30));
+            let joined: Vec<f32> = (0..3).flat_map(|c| {
+                let t = &top.data[c * w * top.h..(c + 1) * w * top.h];
+                let b = &bottom.data[c * w * bottom.h..(c + 1) * w * bottom.h];
+                t.iter().chain(b).copied().collect::<Vec<_>>()
+            }).collect();
+            prop_assert_eq!(whole.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), joined.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+            let want = oracle::cross_regression(&s.x.to_f64(), &s.var.to_f64(), &y.to_f64(), &alb.to_f64(), &nrm.to_f64(), w, h);
+            let peak = want.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for (i, (&a, &b)) in whole.data.iter().zip(&want).enumerate() {
+                prop_assert!((a as f64 - b).abs() <= 1e-4 * peak + 1e-4 * b.abs(), "{}: element {i} {a} vs {b}", isa.name());
+            }
+        }
+    }
+}
+
+struct FilterScene {
+    pa: Img,
+    pb: Img,
+    alb: Img,
+    nrm: Img,
+    prev: Img,
+    valid: Img,
+}
+
+impl FilterScene {
+    fn random(w: usize, h: usize, seed: u64) -> FilterScene {
+        FilterScene {
+            pa: Img::random(3, w, h, 0.0, 2.0, seed),
+            pb: Img::random(3, w, h, 0.0, 2.0, seed + 1),
+            alb: Img::random(3, w, h, 0.0, 1.0, seed + 2),
+            nrm: Img::random(3, w, h, -1.0, 1.0, seed + 3),
+            prev: Img::random(3, w, h, 0.0, 2.0, seed + 4),
+            valid: Img::random(1, w, h, 0.0, 1.0, seed + 5),
+        }
+    }
+    fn inputs(&self) -> FilterInputs<'_> {
+        FilterInputs {
+            pilot_a: self.pa.view(),
+            pilot_b: self.pb.view(),
+            albedo: self.alb.view(),
+            normal: self.nrm.view(),
+            prev: self.prev.view(),
+            valid: self.valid.view(),
+        }
+    }
+    fn oracle(&self) -> [Vec<f64>; 6] {
+        [
+            self.pa.to_f64(),
+            self.pb.to_f64(),
+            self.alb.to_f64(),
+            self.nrm.to_f64(),
+            self.prev.to_f64(),
+            self.valid.to_f64(),
+        ]
+    }
+}
+
+fn filter(isa: Isa, s: &FilterScene, params: &Img) -> Img {
+    let mut out = Img::zeros(9, s.pa.w, s.pa.h);
+    let mut scratch = vec![f32::NAN; regress::filter_scratch_len(s.pa.w)];
+    regress::filter_rows(isa, &s.inputs(), &params.view(), &mut out.view_mut(), 0, &mut scratch).unwrap();
+    out
+}
+
+proptest! {
+    #![proptest_config(cfg(16))]
+
+    /// Constant pilots with no history: every output is that constant
+    /// (the weights normalise), whatever the bandwidths.
+    #[test]
+    fn filter_weights_normalise(w in width(), h in 1usize..14, seed in 0u64..1000, v in 0.0f32..4.0) {
+        let mut s = FilterScene::random(w, h, seed);
+        s.pa = Img::filled(3, w, h, v);
+        s.pb = Img::filled(3, w, h, v);
+        s.valid = Img::zeros(1, w, h);
+        let params = Img::random(6, w, h, -3.0, 3.0, seed + 9);
+        for isa in isas_under_test() {
+            let out = filter(isa, &s, &params);
+            for (i, &o) in out.data.iter().enumerate() {
+                prop_assert!((o - v).abs() <= 2e-6 * (1.0 + v), "{}: element {i} {o} vs {v}", isa.name());
+            }
+        }
+    }
+
+    /// The backward pass against central differences of the f64 forward
+    /// oracle of `sum g . (output A, output B)`.
+    #[test]
+    fn filter_gradient_matches_finite_differences(w in width(), h in 1usize..8, seed in 0u64..1000) {
+        let s = FilterScene::random(w, h, seed);
+        // Bandwidth raw outputs away from 0 (where k = 1/(r^2+1e-4) is
+        // steep): |r| in [0.3, 2].
+        let mut params = Img::random(6, w, h, 0.3, 2.0, seed + 11);
+        let signs = Img::random(6, w, h, -1.0, 1.0, seed + 12);
+        for (p, s) in params.data.iter_mut().zip(&signs.data) {
+            if *s < 0.0 { *p = -*p; }
+        }
+        let g = Img::random(6, w, h, -1.0, 1.0, seed + 13);
+        let [pa, pb, alb, nrm, prev, valid] = s.oracle();
+        let f = oracle::CrossFilter { pa: &pa, pb: &pb, alb: &alb, nrm: &nrm, prev: &prev, valid: &valid, w, h };
+        let gd = g.to_f64();
+        let n = w * h;
+        let loss = |p: &[f64]| -> f64 {
+            let o = f.forward(p);
+            o[..6 * n].iter().zip(&gd).map(|(a, b)| a * b).sum()
+        };
+        let x = params.to_f64();
+        let mut v = x.clone();
+        let want: Vec<f64> = (0..x.len()).map(|i| {
+            let hh = 1e-6 * (1.0 + x[i].abs());
+            v[i] = x[i] + hh;
+            let a = loss(&v);
+            v[i] = x[i] - hh;
+            let b = loss(&v);
+            v[i] = x[i];
+            (a - b) / (2.0 * hh)
+        }).collect();
+        // The oracle's analytic gradient agrees with its own differences.
+        let analytic = f.backward(&x, &gd);
+        let scale = want.iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-3);
+        for (a, b) in analytic.iter().zip(&want) {
+            prop_assert!((a - b).abs() <= 1e-6 * scale + 1e-6 * b.abs(), "oracle analytic {a} vs {b}");
+        }
+        for isa in isas_under_test() {
+            let mut dp = Img::zeros(6, w, h);
+            let mut scratch = vec![f32::NAN; regress::filter_scratch_len(w)];
+            regress::filter_grad_rows(isa, &s.inputs(), &params.view(), &g.view(), &mut dp.view_mut(), 0, &mut scratch).unwrap();
+            for (i, (&a, &b)) in dp.data.iter().zip(&want).enumerate() {
+                prop_assert!((a as f64 - b).abs() <= 2e-4 * scale + 2e-4 * b.abs(), "{} {w}x{h}: element {i} {a} vs {b}", isa.name());
+            }
+        }
+    }
+}
+
+/// Bad shapes and short scratch are errors naming the argument.
+#[test]
+fn bad_shapes_are_errors() {
+    let s = FilterScene::random(9, 5, 1);
+    let params = Img::zeros(6, 9, 5);
+    let mut out = Img::zeros(9, 9, 5);
+    let mut short = vec![0.0; 3];
+    let e = regress::filter_rows(Isa::Scalar, &s.inputs(), &params.view(), &mut out.view_mut(), 0, &mut short);
+    assert!(matches!(e, Err(mcdenoise_core::Error::ScratchTooSmall { .. })), "{e:?}");
+    let mut scratch = vec![0.0; regress::filter_scratch_len(9)];
+    let wrong = Img::zeros(5, 9, 5);
+    let e = regress::filter_rows(Isa::Scalar, &s.inputs(), &wrong.view(), &mut out.view_mut(), 0, &mut scratch);
+    assert!(e.unwrap_err().to_string().contains("filter parameters"));
+    let mut tall = Img::zeros(9, 9, 5);
+    let e = regress::filter_rows(Isa::Scalar, &s.inputs(), &params.view(), &mut tall.view_mut(), 2, &mut scratch);
+    assert!(e.is_err());
+    let x = Img::zeros(3, 9, 5);
+    let var = Img::zeros(1, 8, 5);
+    let inp = RegressionInputs { x: x.view(), var: var.view(), y: x.view(), albedo: x.view(), normal: x.view() };
+    let mut o = Img::zeros(3, 9, 5);
+    let mut sc = vec![0.0; regress::regression_scratch_len(9)];
+    let e = regress::regression_rows(Isa::Scalar, &inp, &mut o.view_mut(), 0, &mut sc);
+    assert!(e.unwrap_err().to_string().contains("regression variance"));
+}
