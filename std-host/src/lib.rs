@@ -6,6 +6,7 @@
 
 pub mod afn;
 pub mod aligned;
+pub mod cross;
 pub mod error;
 pub mod frame;
 pub mod methods;
