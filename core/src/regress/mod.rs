@@ -37,7 +37,7 @@
 //! the six raw outputs.
 
 use crate::error::{check_scratch, check_shape, Error, Result, Shape};
-use crate::math::scalar::exp_select;
+use crate::math::{EXP_C, EXP_HI, EXP_LO, LN2_HI, LN2_LO, LOG2E, ROUND_MAGIC};
 use crate::unfold::check_band;
 use crate::view::{View, ViewMut};
 use crate::Isa;
@@ -60,6 +60,35 @@ pub const FILTER_RADIUS: usize = FILTER_WINDOW / 2;
 pub const PARAMS: usize = 6;
 /// Added to `r^2` before the reciprocal that makes a bandwidth.
 pub const BAND_EPS: f32 = 1e-4;
+
+/// `e^x` with the algorithm and the values of the core's `exp` (0 below
+/// `EXP_LO`, clamped at `EXP_HI`), written with integer arithmetic on the
+/// rounding constant's bits instead of a float-to-int conversion (whose
+/// saturating semantics keep loops from vectorising).
+#[inline(always)]
+pub fn exp_vec(x: f32) -> f32 {
+    let valid = x >= EXP_LO;
+    let xc = if valid { x } else { 0.0 };
+    let xc = if xc > EXP_HI { EXP_HI } else { xc };
+    let y = xc * LOG2E + ROUND_MAGIC;
+    let n = y - ROUND_MAGIC;
+    let r = (xc - n * LN2_HI) - n * LN2_LO;
+    let mut p = EXP_C[6];
+    p = p * r + EXP_C[5];
+    p = p * r + EXP_C[4];
+    p = p * r + EXP_C[3];
+    p = p * r + EXP_C[2];
+    p = p * r + EXP_C[1];
+    p = p * r + EXP_C[0];
+    // The low bits of `y` hold `n` in two's complement.
+    let ni = y.to_bits().wrapping_sub(ROUND_MAGIC.to_bits());
+    let scale = f32::from_bits(ni.wrapping_add(127) << 23);
+    if valid {
+        p * scale
+    } else {
+        0.0
+    }
+}
 
 /// Index `i` mirrored into `0..n` (`-1 -> 1`, `n -> n - 2`), periodically for
 /// windows wider than the image.
@@ -91,7 +120,7 @@ pub fn bandwidth(r: f32) -> f32 {
 /// `1 / (1 + e^-r)`.
 #[inline(always)]
 pub fn sigmoid(r: f32) -> f32 {
-    1.0 / (1.0 + exp_select(-r))
+    1.0 / (1.0 + exp_vec(-r))
 }
 
 // ---- variance ---------------------------------------------------------------
@@ -206,7 +235,7 @@ fn reg_weight(c: &Px, i: &Px) -> f32 {
         let t = i.x[k] - c.x[k];
         d += t * t;
     }
-    exp_select(-d / (c.var + i.var + 1e-4)) + 1e-7
+    exp_vec(-d / (c.var + i.var + 1e-4)) + 1e-7
 }
 
 /// The design row of pixel `i` relative to centre `c` for channel `k`.
@@ -217,7 +246,7 @@ fn design(c: &Px, i: &Px, k: usize) -> [f32; COEFFS] {
 
 /// Solves `(A + RIDGE I) b = r` for a symmetric positive `A` (upper triangle
 /// given, row-major) by Cholesky in place.
-#[inline]
+#[inline(always)]
 fn solve(a: &mut [f32; COEFFS * COEFFS], r: &[f32; COEFFS]) -> [f32; COEFFS] {
     const P: usize = COEFFS;
     for i in 0..P {
@@ -261,6 +290,7 @@ fn solve(a: &mut [f32; COEFFS * COEFFS], r: &[f32; COEFFS]) -> [f32; COEFFS] {
 }
 
 /// Solves the centre at pixel `(cx, cy)` into `out` (`PER_CENTRE` words).
+#[inline(always)]
 fn solve_centre(inp: &RegressionInputs<'_>, cx: usize, cy: usize, out: &mut [f32]) {
     let (w, h) = (inp.x.width(), inp.x.height());
     let c = px(inp, cy, cx);
@@ -404,20 +434,29 @@ impl FilterInputs<'_> {
 
 /// Guide planes copied per window row: pilot A, pilot B, albedo, normal.
 const GUIDES: usize = 12;
-/// Pixels per chunk (accumulators on the stack).
-const CHUNK: usize = 64;
+/// Pixels per chunk: every per-pixel quantity of a chunk is a fixed-size
+/// array, so that the window loop runs at a constant trip count with no
+/// bounds checks and vectorises across pixels (one AVX-512 or two AVX2
+/// vectors; the accumulators can stay in registers).
+const CHUNK: usize = 16;
+
+/// Padded width of a guide row in the scratch: the image rounded up to whole
+/// chunks, plus the window's halo on each side.
+fn padded_width(width: usize) -> usize {
+    width.div_ceil(CHUNK) * CHUNK + 2 * FILTER_RADIUS
+}
 
 /// Scratch words for [`filter_rows`] and [`filter_grad_rows`] on an image
 /// `width` wide: the 11 window rows of the 12 guide planes, mirrored and
 /// padded by 5 on each side.
 pub fn filter_scratch_len(width: usize) -> usize {
-    FILTER_WINDOW * GUIDES * (width + 2 * FILTER_RADIUS)
+    FILTER_WINDOW * GUIDES * padded_width(width)
 }
 
 /// Copies the mirrored window rows of output row `y` into `rows`.
 fn fill_rows(inp: &FilterInputs<'_>, y: usize, rows: &mut [f32]) {
     let (w, h) = (inp.pilot_a.width(), inp.pilot_a.height());
-    let pw = w + 2 * FILTER_RADIUS;
+    let pw = padded_width(w);
     let r = FILTER_RADIUS as isize;
     for (t, dy) in (-r..=r).enumerate() {
         let sy = mirror(y as isize + dy, h);
@@ -434,6 +473,8 @@ fn fill_rows(inp: &FilterInputs<'_>, y: usize, rows: &mut [f32]) {
                 dst[i] = src[mirror(i as isize - r, w)];
                 dst[FILTER_RADIUS + w + i] = src[mirror((w + i) as isize, w)];
             }
+            // The last chunk's lanes past the image: finite, never written out.
+            dst[2 * FILTER_RADIUS + w..].fill(0.0);
         }
     }
 }
@@ -447,98 +488,96 @@ struct Sums {
     t: [[f32; CHUNK]; 16],
 }
 
-/// Runs the window over one chunk of row `y` (pixels `x0 .. x0 + n`).
+/// Runs the window over one chunk of row `y` (pixels `x0 .. x0 + CHUNK`;
+/// lanes past the image compute on padding and are ignored).
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 fn window<const GRAD: bool>(
     rows: &[f32],
     pw: usize,
     x0: usize,
-    n: usize,
     k: &[[f32; CHUNK]; 5],
     g: &[[f32; CHUNK]; 6],
     sums: &mut Sums,
 ) {
     let r = FILTER_RADIUS as isize;
-    let centre = |gd: usize, i: usize| rows[(FILTER_RADIUS * GUIDES + gd) * pw + FILTER_RADIUS + x0 + i];
+    let span = |base: usize, gd: usize, u: usize| -> &[f32; CHUNK] {
+        let at = base + gd * pw + x0 + u;
+        rows[at..at + CHUNK].try_into().expect("a chunk inside the padded row")
+    };
     let mut c = [[0.0f32; CHUNK]; GUIDES];
-    for gd in 0..GUIDES {
-        for i in 0..n {
-            c[gd][i] = centre(gd, i);
-        }
+    for (gd, cg) in c.iter_mut().enumerate() {
+        *cg = *span(FILTER_RADIUS * GUIDES * pw, gd, FILTER_RADIUS);
     }
-    for a in sums.s.iter_mut() {
-        a[..n].fill(0.0);
-    }
-    if GRAD {
-        for a in sums.t.iter_mut() {
-            a[..n].fill(0.0);
-        }
-    }
-    for (t, dy) in (-r..=r).enumerate() {
-        let base = t * GUIDES * pw;
-        let plane = |gd: usize| &rows[base + gd * pw + x0..base + gd * pw + x0 + n + 2 * FILTER_RADIUS];
-        let (a0, a1, a2) = (plane(0), plane(1), plane(2));
-        let (b0, b1, b2) = (plane(3), plane(4), plane(5));
-        let (l0, l1, l2) = (plane(6), plane(7), plane(8));
-        let (n0, n1, n2) = (plane(9), plane(10), plane(11));
+    let mut s = [[0.0f32; CHUNK]; 8];
+    let mut t = [[0.0f32; CHUNK]; 16];
+    for (ti, dy) in (-r..=r).enumerate() {
+        let base = ti * GUIDES * pw;
         for (u, dx) in (-r..=r).enumerate() {
             let pd = ((dx * dx + dy * dy) as f32) / ((FILTER_RADIUS * FILTER_RADIUS) as f32);
-            for i in 0..n {
-                let j = i + u;
+            let (a0, a1, a2) = (span(base, 0, u), span(base, 1, u), span(base, 2, u));
+            let (b0, b1, b2) = (span(base, 3, u), span(base, 4, u), span(base, 5, u));
+            let (l0, l1, l2) = (span(base, 6, u), span(base, 7, u), span(base, 8, u));
+            let (n0, n1, n2) = (span(base, 9, u), span(base, 10, u), span(base, 11, u));
+            for i in 0..CHUNK {
                 let sq = |v: f32| v * v;
-                let da = sq(a0[j] - c[0][i]) + sq(a1[j] - c[1][i]) + sq(a2[j] - c[2][i]);
-                let db = sq(b0[j] - c[3][i]) + sq(b1[j] - c[4][i]) + sq(b2[j] - c[5][i]);
-                let dl = sq(l0[j] - c[6][i]) + sq(l1[j] - c[7][i]) + sq(l2[j] - c[8][i]);
-                let dn = sq(n0[j] - c[9][i]) + sq(n1[j] - c[10][i]) + sq(n2[j] - c[11][i]);
+                let (ea0, ea1, ea2) = (a0[i] - c[0][i], a1[i] - c[1][i], a2[i] - c[2][i]);
+                let (eb0, eb1, eb2) = (b0[i] - c[3][i], b1[i] - c[4][i], b2[i] - c[5][i]);
+                let da = sq(ea0) + sq(ea1) + sq(ea2);
+                let db = sq(eb0) + sq(eb1) + sq(eb2);
+                let dl = sq(l0[i] - c[6][i]) + sq(l1[i] - c[7][i]) + sq(l2[i] - c[8][i]);
+                let dn = sq(n0[i] - c[9][i]) + sq(n1[i] - c[10][i]) + sq(n2[i] - c[11][i]);
                 let common = k[2][i] * dl + k[3][i] * dn + k[4][i] * pd;
-                let wa = exp_select(-(k[0][i] * da + common));
-                let wb = exp_select(-(k[1][i] * db + common));
+                let wa = exp_vec(-(k[0][i] * da + common));
+                let wb = exp_vec(-(k[1][i] * db + common));
                 if GRAD {
                     // Relative to the centre (the backward pass needs s - f_c).
-                    sums.s[0][i] += wa * (a0[j] - c[0][i]);
-                    sums.s[1][i] += wa * (a1[j] - c[1][i]);
-                    sums.s[2][i] += wa * (a2[j] - c[2][i]);
-                    sums.s[4][i] += wb * (b0[j] - c[3][i]);
-                    sums.s[5][i] += wb * (b1[j] - c[4][i]);
-                    sums.s[6][i] += wb * (b2[j] - c[5][i]);
+                    s[0][i] += wa * ea0;
+                    s[1][i] += wa * ea1;
+                    s[2][i] += wa * ea2;
+                    s[4][i] += wb * eb0;
+                    s[5][i] += wb * eb1;
+                    s[6][i] += wb * eb2;
                 } else {
-                    sums.s[0][i] += wa * a0[j];
-                    sums.s[1][i] += wa * a1[j];
-                    sums.s[2][i] += wa * a2[j];
-                    sums.s[4][i] += wb * b0[j];
-                    sums.s[5][i] += wb * b1[j];
-                    sums.s[6][i] += wb * b2[j];
+                    s[0][i] += wa * a0[i];
+                    s[1][i] += wa * a1[i];
+                    s[2][i] += wa * a2[i];
+                    s[4][i] += wb * b0[i];
+                    s[5][i] += wb * b1[i];
+                    s[6][i] += wb * b2[i];
                 }
-                sums.s[3][i] += wa;
-                sums.s[7][i] += wb;
+                s[3][i] += wa;
+                s[7][i] += wb;
                 if GRAD {
                     // g . (f_i - f_c): relative to the centre, so that a flat
                     // window cancels exactly.
-                    let gfa = g[0][i] * (a0[j] - c[0][i]) + g[1][i] * (a1[j] - c[1][i]) + g[2][i] * (a2[j] - c[2][i]);
-                    let gfb = g[3][i] * (b0[j] - c[3][i]) + g[4][i] * (b1[j] - c[4][i]) + g[5][i] * (b2[j] - c[5][i]);
+                    let gfa = g[0][i] * ea0 + g[1][i] * ea1 + g[2][i] * ea2;
+                    let gfb = g[3][i] * eb0 + g[4][i] * eb1 + g[5][i] * eb2;
                     let (wda, wdb) = (wa * da, wb * db);
                     let (wla, wna, wpa) = (wa * dl, wa * dn, wa * pd);
                     let (wlb, wnb, wpb) = (wb * dl, wb * dn, wb * pd);
-                    sums.t[0][i] += wda * gfa;
-                    sums.t[1][i] += wla * gfa;
-                    sums.t[2][i] += wna * gfa;
-                    sums.t[3][i] += wpa * gfa;
-                    sums.t[4][i] += wda;
-                    sums.t[5][i] += wla;
-                    sums.t[6][i] += wna;
-                    sums.t[7][i] += wpa;
-                    sums.t[8][i] += wdb * gfb;
-                    sums.t[9][i] += wlb * gfb;
-                    sums.t[10][i] += wnb * gfb;
-                    sums.t[11][i] += wpb * gfb;
-                    sums.t[12][i] += wdb;
-                    sums.t[13][i] += wlb;
-                    sums.t[14][i] += wnb;
-                    sums.t[15][i] += wpb;
+                    t[0][i] += wda * gfa;
+                    t[1][i] += wla * gfa;
+                    t[2][i] += wna * gfa;
+                    t[3][i] += wpa * gfa;
+                    t[4][i] += wda;
+                    t[5][i] += wla;
+                    t[6][i] += wna;
+                    t[7][i] += wpa;
+                    t[8][i] += wdb * gfb;
+                    t[9][i] += wlb * gfb;
+                    t[10][i] += wnb * gfb;
+                    t[11][i] += wpb * gfb;
+                    t[12][i] += wdb;
+                    t[13][i] += wlb;
+                    t[14][i] += wnb;
+                    t[15][i] += wpb;
                 }
             }
         }
+    }
+    sums.s = s;
+    if GRAD {
+        sums.t = t;
     }
 }
 
@@ -563,7 +602,7 @@ pub fn filter_rows(
     check_params("filter output", s, out.shape(), y0, 9)?;
     check_scratch(filter_scratch_len(s.width), scratch.len())?;
     let w = s.width;
-    let pw = w + 2 * FILTER_RADIUS;
+    let pw = padded_width(w);
     versions!(isa, || {
         let mut sums = Sums { s: [[0.0; CHUNK]; 8], t: [[0.0; CHUNK]; 16] };
         let g = [[0.0f32; CHUNK]; 6];
@@ -580,7 +619,7 @@ pub fn filter_rows(
                         kj[i] = bandwidth(r[i]);
                     }
                 }
-                window::<false>(scratch, pw, x0, n, &k, &g, &mut sums);
+                window::<false>(scratch, pw, x0, &k, &g, &mut sums);
                 for i in 0..n {
                     let x = x0 + i;
                     let alpha = sigmoid(params.row(5, yo)[x]);
@@ -629,7 +668,7 @@ pub fn filter_grad_rows(
     }
     check_scratch(filter_scratch_len(s.width), scratch.len())?;
     let w = s.width;
-    let pw = w + 2 * FILTER_RADIUS;
+    let pw = padded_width(w);
     versions!(isa, || {
         let mut sums = Sums { s: [[0.0; CHUNK]; 8], t: [[0.0; CHUNK]; 16] };
         for yo in 0..dparams.height() {
@@ -649,7 +688,7 @@ pub fn filter_grad_rows(
                 for (j, gj) in g.iter_mut().enumerate() {
                     gj[..n].copy_from_slice(&grad.row(j, yo)[x0..x0 + n]);
                 }
-                window::<true>(scratch, pw, x0, n, &k, &g, &mut sums);
+                window::<true>(scratch, pw, x0, &k, &g, &mut sums);
                 for i in 0..n {
                     let x = x0 + i;
                     let r5 = params.row(5, yo)[x];
