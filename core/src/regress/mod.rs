@@ -201,7 +201,175 @@ const RING: usize = 2 * REG_RADIUS / SPARSITY + 1;
 
 /// Scratch words for [`regression_rows`] on an image `width` wide.
 pub fn regression_scratch_len(width: usize) -> usize {
-    RING * centres(width) * PER_CENTRE
+    RING * centres(width) * PER_CENTRE + PHASE_VALUES * SPARSITY * phase_len(width)
+}
+
+/// Centres solved together (one AVX-512 or two AVX2 vectors).
+const LANES: usize = 16;
+/// Values per pixel in the phase planes: x (3), y (3), albedo (3), normal
+/// (3), variance, standard deviation.
+const PHASE_VALUES: usize = 14;
+
+/// Length of a phase plane: the centres rounded up to whole lane groups and
+/// 2 more on each side (the window reaches 8 px = 2 centres).
+fn phase_len(width: usize) -> usize {
+    centres(width).div_ceil(LANES) * LANES + 4
+}
+
+/// The 14 values of image row `sy` de-interleaved by `x mod 4` (entries `m0 .. m1`):
+/// `ph[(v * 4 + p) * len + m]` is value `v` at `x = mirror(4 (m - 2) + p)`,
+/// so that the pixel `4 i + dx` of centre `i` (`dx = 4 q + p`) is
+/// `ph[(v * 4 + p) * len + i + q + 2]`: contiguous over consecutive centres.
+#[inline(always)]
+fn fill_phases(inp: &RegressionInputs<'_>, sy: usize, ph: &mut [f32], len: usize, m0: usize, m1: usize) {
+    let w = inp.x.width();
+    for p in 0..SPARSITY {
+        for m in m0..m1 {
+            let x = mirror(SPARSITY as isize * (m as isize - 2) + p as isize, w);
+            let var = inp.var.row(0, sy)[x];
+            let vals = [
+                inp.x.row(0, sy)[x],
+                inp.x.row(1, sy)[x],
+                inp.x.row(2, sy)[x],
+                inp.y.row(0, sy)[x],
+                inp.y.row(1, sy)[x],
+                inp.y.row(2, sy)[x],
+                inp.albedo.row(0, sy)[x],
+                inp.albedo.row(1, sy)[x],
+                inp.albedo.row(2, sy)[x],
+                inp.normal.row(0, sy)[x],
+                inp.normal.row(1, sy)[x],
+                inp.normal.row(2, sy)[x],
+                var,
+                libm::sqrtf(var.max(0.0)),
+            ];
+            for (v, &val) in vals.iter().enumerate() {
+                ph[(v * SPARSITY + p) * len + m] = val;
+            }
+        }
+    }
+}
+
+/// Solves centre row `j` (all its centres) into `dst` (`ncx * PER_CENTRE`
+/// words), `LANES` centres at a time. The normal equations' entries that
+/// involve only the intercept and the normal columns are the same for the
+/// three channels and summed once.
+#[inline(always)]
+fn solve_row(inp: &RegressionInputs<'_>, j: usize, dst: &mut [f32], ph: &mut [f32]) {
+    let (w, h) = (inp.x.width(), inp.x.height());
+    let ncx = centres(w);
+    let len = phase_len(w);
+    let r = REG_RADIUS as isize;
+    let cy = j * SPARSITY;
+    // Shared pairs among columns {0, 3, 4, 5}; per channel the pairs with 1 or 2.
+    const SHARED: [(usize, usize); 10] =
+        [(0, 0), (0, 3), (0, 4), (0, 5), (3, 3), (3, 4), (3, 5), (4, 4), (4, 5), (5, 5)];
+    const OWN: [(usize, usize); 11] =
+        [(0, 1), (0, 2), (1, 1), (1, 2), (1, 3), (1, 4), (1, 5), (2, 2), (2, 3), (2, 4), (2, 5)];
+    let mut i0 = 0;
+    while i0 < ncx {
+        let mut c = [[0.0f32; LANES]; PHASE_VALUES];
+        for l in 0..LANES {
+            let cx = (i0 + l).min(ncx - 1) * SPARSITY;
+            let p = px(inp, cy, cx);
+            for k in 0..3 {
+                c[k][l] = p.x[k];
+                c[6 + k][l] = p.a[k];
+                c[9 + k][l] = p.n[k];
+            }
+            c[12][l] = p.var;
+            c[13][l] = p.sd;
+        }
+        let mut shared = [[0.0f32; LANES]; 10];
+        let mut own = [[[0.0f32; LANES]; 11]; 3];
+        let mut rhs = [[[0.0f32; LANES]; COEFFS]; 3];
+        for dy in -r..=r {
+            let sy = mirror(cy as isize + dy, h);
+            // The part of the phase planes this lane group reads.
+            fill_phases(inp, sy, ph, len, i0, i0 + LANES + 4);
+            for dx in -r..=r {
+                let (q, p) = (dx.div_euclid(SPARSITY as isize), dx.rem_euclid(SPARSITY as isize) as usize);
+                let at = (i0 as isize + q + 2) as usize;
+                let v = |k: usize| -> &[f32; LANES] {
+                    let b = (k * SPARSITY + p) * len + at;
+                    ph[b..b + LANES].try_into().expect("inside the phase plane")
+                };
+                let (x0, x1, x2) = (v(0), v(1), v(2));
+                let (y0, y1, y2) = (v(3), v(4), v(5));
+                let (a0, a1, a2) = (v(6), v(7), v(8));
+                let (n0, n1, n2) = (v(9), v(10), v(11));
+                let (var, sd) = (v(12), v(13));
+                // Per lane: the weight and the design columns (the loops over
+                // lanes are innermost so that they vectorise).
+                let mut wt = [0.0f32; LANES];
+                let mut inv = [0.0f32; LANES];
+                let mut e = [[0.0f32; LANES]; 3];
+                for l in 0..LANES {
+                    e[0][l] = x0[l] - c[0][l];
+                    e[1][l] = x1[l] - c[1][l];
+                    e[2][l] = x2[l] - c[2][l];
+                    let d2 = e[0][l] * e[0][l] + e[1][l] * e[1][l] + e[2][l] * e[2][l];
+                    wt[l] = exp_vec(-d2 / (c[12][l] + var[l] + 1e-4)) + 1e-7;
+                    inv[l] = 1.0 / (c[13][l] + sd[l] + 0.01);
+                }
+                // Columns: 0 ones, 1-2 per channel, 3-5 the normal differences.
+                let mut col = [[0.0f32; LANES]; 6];
+                col[0] = [1.0; LANES];
+                for l in 0..LANES {
+                    col[3][l] = n0[l] - c[9][l];
+                    col[4][l] = n1[l] - c[10][l];
+                    col[5][l] = n2[l] - c[11][l];
+                }
+                let mut wc = [[0.0f32; LANES]; 6];
+                for pp in [0, 3, 4, 5] {
+                    for l in 0..LANES {
+                        wc[pp][l] = wt[l] * col[pp][l];
+                    }
+                }
+                for (t, &(a, b)) in SHARED.iter().enumerate() {
+                    for l in 0..LANES {
+                        shared[t][l] += wc[a][l] * col[b][l];
+                    }
+                }
+                let ys = [y0, y1, y2];
+                let als = [a0, a1, a2];
+                for k in 0..3 {
+                    for l in 0..LANES {
+                        col[1][l] = e[k][l] * inv[l];
+                        col[2][l] = als[k][l] - c[6 + k][l];
+                        wc[1][l] = wt[l] * col[1][l];
+                        wc[2][l] = wt[l] * col[2][l];
+                    }
+                    for (t, &(a, b)) in OWN.iter().enumerate() {
+                        for l in 0..LANES {
+                            own[k][t][l] += wc[a][l] * col[b][l];
+                        }
+                    }
+                    for pp in 0..COEFFS {
+                        for l in 0..LANES {
+                            rhs[k][pp][l] += wc[pp][l] * ys[k][l];
+                        }
+                    }
+                }
+            }
+        }
+        for l in 0..LANES.min(ncx - i0) {
+            let out = &mut dst[(i0 + l) * PER_CENTRE..(i0 + l + 1) * PER_CENTRE];
+            for k in 0..3 {
+                let mut a = [0.0f32; COEFFS * COEFFS];
+                for (t, &(p, q)) in SHARED.iter().enumerate() {
+                    a[p * COEFFS + q] = shared[t][l];
+                }
+                for (t, &(p, q)) in OWN.iter().enumerate() {
+                    a[p * COEFFS + q] = own[k][t][l];
+                }
+                let rk: [f32; COEFFS] = core::array::from_fn(|pp| rhs[k][pp][l]);
+                let b = solve(&mut a, &rk);
+                out[k * COEFFS..(k + 1) * COEFFS].copy_from_slice(&b);
+            }
+        }
+        i0 += LANES;
+    }
 }
 
 /// One pixel's values the regression reads.
@@ -289,40 +457,6 @@ fn solve(a: &mut [f32; COEFFS * COEFFS], r: &[f32; COEFFS]) -> [f32; COEFFS] {
     }
 }
 
-/// Solves the centre at pixel `(cx, cy)` into `out` (`PER_CENTRE` words).
-#[inline(always)]
-fn solve_centre(inp: &RegressionInputs<'_>, cx: usize, cy: usize, out: &mut [f32]) {
-    let (w, h) = (inp.x.width(), inp.x.height());
-    let c = px(inp, cy, cx);
-    let mut gram = [[0.0f32; COEFFS * COEFFS]; 3];
-    let mut rhs = [[0.0f32; COEFFS]; 3];
-    let r = REG_RADIUS as isize;
-    for dy in -r..=r {
-        let y = mirror(cy as isize + dy, h);
-        for dx in -r..=r {
-            let x = mirror(cx as isize + dx, w);
-            let i = px(inp, y, x);
-            let wt = reg_weight(&c, &i);
-            for k in 0..3 {
-                let d = design(&c, &i, k);
-                let yk = inp.y.row(k, y)[x];
-                let g = &mut gram[k];
-                for p in 0..COEFFS {
-                    let wd = wt * d[p];
-                    for q in p..COEFFS {
-                        g[p * COEFFS + q] += wd * d[q];
-                    }
-                    rhs[k][p] += wd * yk;
-                }
-            }
-        }
-    }
-    for k in 0..3 {
-        let b = solve(&mut gram[k], &rhs[k]);
-        out[k * COEFFS..(k + 1) * COEFFS].copy_from_slice(&b);
-    }
-}
-
 /// The cross-regression's pilot estimate for rows `y0 .. y0 + out.height()`
 /// into `out` (3 planes): centres solved on demand into a ring in `scratch`
 /// ([`regression_scratch_len`]), then every pixel blended from the centres
@@ -345,7 +479,7 @@ pub fn regression_rows(
         return Ok(());
     }
     let ncy = centres(h);
-    let ring = &mut scratch[..RING * row_len];
+    let (ring, ph) = scratch.split_at_mut(RING * row_len);
     versions!(isa, || {
         let mut held = [usize::MAX; RING];
         let r = REG_RADIUS as isize;
@@ -358,10 +492,7 @@ pub fn regression_rows(
             for j in jlo..=jhi {
                 let slot = j % RING;
                 if held[slot] != j {
-                    let dst = &mut ring[slot * row_len..(slot + 1) * row_len];
-                    for i in 0..ncx {
-                        solve_centre(inp, i * SPARSITY, j * SPARSITY, &mut dst[i * PER_CENTRE..(i + 1) * PER_CENTRE]);
-                    }
+                    solve_row(inp, j, &mut ring[slot * row_len..(slot + 1) * row_len], ph);
                     held[slot] = j;
                 }
             }
