@@ -280,7 +280,9 @@ impl Denoiser for Cross {
         let isa = ctx.isa;
         let (strips, crop_h) = strips(h, hp);
         if self.trainer.is_none() {
-            let mut tr = Trainer::new(self.net.clone(), self.init.clone(), strips.len(), wp, crop_h, LR, 0.0);
+            // MCDENOISE_CROSS_LR overrides the learning rate (for ablations only).
+            let lr = std::env::var("MCDENOISE_CROSS_LR").ok().and_then(|v| v.parse().ok()).unwrap_or(LR);
+            let mut tr = Trainer::new(self.net.clone(), self.init.clone(), strips.len(), wp, crop_h, lr, 0.0);
             if let Some((m, v, step)) = self.adam.take() {
                 tr.adam.m = m;
                 tr.adam.v = v;
@@ -344,6 +346,10 @@ impl Denoiser for Cross {
         // 2. Reprojection of the previous output and pilots.
         t.time("reprojection", || -> Result<()> {
             bufs.valid.fill(0.0);
+            // MCDENOISE_CROSS_NO_TEMPORAL=1: spatial only (for ablations).
+            if std::env::var("MCDENOISE_CROSS_NO_TEMPORAL").is_ok_and(|v| v == "1") {
+                return Ok(());
+            }
             let Some(prev) = &self.prev else { return Ok(()) };
             let motion = f.view(Buffer::Motion);
             let position = f.view(Buffer::Position);
