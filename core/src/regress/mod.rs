@@ -201,7 +201,45 @@ const RING: usize = 2 * REG_RADIUS / SPARSITY + 1;
 
 /// Scratch words for [`regression_rows`] on an image `width` wide.
 pub fn regression_scratch_len(width: usize) -> usize {
-    RING * centres(width) * PER_CENTRE + PHASE_VALUES * SPARSITY * phase_len(width)
+    RING * centres(width) * PER_CENTRE
+        + RING * EXPANDED * expanded_width(width)
+        + 11 * width.div_ceil(LANES) * LANES
+        + PHASE_VALUES * SPARSITY * phase_len(width)
+}
+
+/// Values per centre in the expanded rows: x (3), albedo (3), normal (3),
+/// variance, standard deviation, the 18 coefficients, and 1 inside the image
+/// (0 in the padding).
+const EXPANDED: usize = 30;
+
+/// Width of an expanded row: every centre's values repeated over its 4
+/// pixels, 8 entries of padding before, whole chunks plus 8 after.
+fn expanded_width(width: usize) -> usize {
+    width.div_ceil(16) * 16 + 16
+}
+
+/// Centre row `j`'s values expanded along the row: entry `x + 8` holds
+/// centre `x / 4`, so that the centre `x / 4 + q` of pixel `x` is entry
+/// `x + 4 q + 8`, contiguous over consecutive pixels.
+#[inline(always)]
+fn expand_row(inp: &RegressionInputs<'_>, j: usize, coeffs: &[f32], e: &mut [f32], ew: usize) {
+    let ncx = centres(inp.x.width());
+    e.fill(0.0);
+    for i in 0..ncx {
+        let c = px(inp, j * SPARSITY, i * SPARSITY);
+        let mut vals = [0.0f32; EXPANDED];
+        vals[..3].copy_from_slice(&c.x);
+        vals[3..6].copy_from_slice(&c.a);
+        vals[6..9].copy_from_slice(&c.n);
+        vals[9] = c.var;
+        vals[10] = c.sd;
+        vals[11..11 + PER_CENTRE].copy_from_slice(&coeffs[i * PER_CENTRE..(i + 1) * PER_CENTRE]);
+        vals[EXPANDED - 1] = 1.0;
+        for (v, &val) in vals.iter().enumerate() {
+            let at = v * ew + 8 + SPARSITY * i;
+            e[at..at + SPARSITY].fill(val);
+        }
+    }
 }
 
 /// Centres solved together (one AVX-512 or two AVX2 vectors).
@@ -394,24 +432,6 @@ fn px(inp: &RegressionInputs<'_>, y: usize, x: usize) -> Px {
     }
 }
 
-/// The regression weight of pixel `i` for centre `c` (and of centre `c` for
-/// pixel `i` in the reconstruction).
-#[inline(always)]
-fn reg_weight(c: &Px, i: &Px) -> f32 {
-    let mut d = 0.0f32;
-    for k in 0..3 {
-        let t = i.x[k] - c.x[k];
-        d += t * t;
-    }
-    exp_vec(-d / (c.var + i.var + 1e-4)) + 1e-7
-}
-
-/// The design row of pixel `i` relative to centre `c` for channel `k`.
-#[inline(always)]
-fn design(c: &Px, i: &Px, k: usize) -> [f32; COEFFS] {
-    [1.0, (i.x[k] - c.x[k]) / (c.sd + i.sd + 0.01), i.a[k] - c.a[k], i.n[0] - c.n[0], i.n[1] - c.n[1], i.n[2] - c.n[2]]
-}
-
 /// Solves `(A + RIDGE I) b = r` for a symmetric positive `A` (upper triangle
 /// given, row-major) by Cholesky in place.
 #[inline(always)]
@@ -471,63 +491,163 @@ pub fn regression_rows(
     let isa = isa.check()?;
     let s = inp.check()?;
     check_band("regression output", s, out.shape(), y0)?;
-    let (w, h) = (s.width, s.height);
+    let w = s.width;
     let ncx = centres(w);
     let row_len = ncx * PER_CENTRE;
     check_scratch(regression_scratch_len(w), scratch.len())?;
     if out.height() == 0 || w == 0 {
         return Ok(());
     }
+    let ew = expanded_width(w);
+    let pwid = w.div_ceil(LANES) * LANES;
+    let (ring, rest) = scratch.split_at_mut(RING * row_len);
+    let (exp_ring, rest) = rest.split_at_mut(RING * EXPANDED * ew);
+    let (pix, ph) = rest.split_at_mut(11 * pwid);
+    let bufs = RegressionScratch { ring, exp_ring, pix, ph };
+    let args = (inp, out, y0, bufs, ew, pwid);
+    match isa.isa() {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `isa` is a checked token: this CPU runs AVX-512.
+        Isa::Avx512 => unsafe { regression_avx512(args) },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: as above, AVX2 and FMA.
+        Isa::Avx2 => unsafe { regression_avx2(args) },
+        _ => regression_body(args),
+    }
+    Ok(())
+}
+
+/// The scratch areas of [`regression_rows`].
+struct RegressionScratch<'s> {
+    ring: &'s mut [f32],
+    exp_ring: &'s mut [f32],
+    pix: &'s mut [f32],
+    ph: &'s mut [f32],
+}
+
+type RegressionArgs<'a, 'b, 'c, 's> =
+    (&'a RegressionInputs<'b>, &'a mut ViewMut<'c, f32>, usize, RegressionScratch<'s>, usize, usize);
+
+// The body is one large function: compiled once per instruction set through
+// these wrappers (a closure this size would not be inlined into them).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl,avx2,fma")]
+unsafe fn regression_avx512(args: RegressionArgs<'_, '_, '_, '_>) {
+    regression_body(args)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn regression_avx2(args: RegressionArgs<'_, '_, '_, '_>) {
+    regression_body(args)
+}
+
+#[inline(always)]
+fn regression_body(args: RegressionArgs<'_, '_, '_, '_>) {
+    let (inp, out, y0, bufs, ew, pwid) = args;
+    let RegressionScratch { ring, exp_ring, pix, ph } = bufs;
+    let (w, h) = (inp.x.width(), inp.x.height());
+    let ncx = centres(w);
     let ncy = centres(h);
-    let (ring, ph) = scratch.split_at_mut(RING * row_len);
-    versions!(isa, || {
-        let mut held = [usize::MAX; RING];
-        let r = REG_RADIUS as isize;
-        for yo in 0..out.height() {
-            let y = y0 + yo;
-            // Centre rows j with |4j - y| <= 8, inside the image.
-            let jlo = (y as isize - r).max(0) as usize;
-            let jlo = jlo.div_ceil(SPARSITY);
-            let jhi = ((y + REG_RADIUS) / SPARSITY).min(ncy - 1);
-            for j in jlo..=jhi {
-                let slot = j % RING;
-                if held[slot] != j {
-                    solve_row(inp, j, &mut ring[slot * row_len..(slot + 1) * row_len], ph);
-                    held[slot] = j;
-                }
+    let row_len = ncx * PER_CENTRE;
+    let mut held = [usize::MAX; RING];
+    let r = REG_RADIUS as isize;
+    for yo in 0..out.height() {
+        let y = y0 + yo;
+        // Centre rows j with |4j - y| <= 8, inside the image.
+        let jlo = (y as isize - r).max(0) as usize;
+        let jlo = jlo.div_ceil(SPARSITY);
+        let jhi = ((y + REG_RADIUS) / SPARSITY).min(ncy - 1);
+        for j in jlo..=jhi {
+            let slot = j % RING;
+            if held[slot] != j {
+                let coeffs = &mut ring[slot * row_len..(slot + 1) * row_len];
+                solve_row(inp, j, coeffs, ph);
+                expand_row(inp, j, coeffs, &mut exp_ring[slot * EXPANDED * ew..(slot + 1) * EXPANDED * ew], ew);
+                held[slot] = j;
             }
-            for x in 0..w {
-                let p = px(inp, y, x);
-                let ilo = (x as isize - r).max(0) as usize;
-                let ilo = ilo.div_ceil(SPARSITY);
-                let ihi = ((x + REG_RADIUS) / SPARSITY).min(ncx - 1);
-                let mut acc = [0.0f32; 3];
-                let mut wsum = 0.0f32;
-                for j in jlo..=jhi {
-                    let coeffs = &ring[(j % RING) * row_len..];
-                    for i in ilo..=ihi {
-                        let c = px(inp, j * SPARSITY, i * SPARSITY);
-                        let wt = reg_weight(&c, &p);
-                        wsum += wt;
-                        let b = &coeffs[i * PER_CENTRE..(i + 1) * PER_CENTRE];
+        }
+        // This row's pixel values, padded to whole chunks.
+        for (v, plane) in [
+            inp.x.row(0, y),
+            inp.x.row(1, y),
+            inp.x.row(2, y),
+            inp.albedo.row(0, y),
+            inp.albedo.row(1, y),
+            inp.albedo.row(2, y),
+            inp.normal.row(0, y),
+            inp.normal.row(1, y),
+            inp.normal.row(2, y),
+            inp.var.row(0, y),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let dst = &mut pix[v * pwid..(v + 1) * pwid];
+            dst[..w].copy_from_slice(plane);
+            dst[w..].fill(0.0);
+        }
+        {
+            let (vars, sds) = pix[9 * pwid..11 * pwid].split_at_mut(pwid);
+            for (sd, &v) in sds.iter_mut().zip(vars.iter()) {
+                *sd = libm::sqrtf(v.max(0.0));
+            }
+        }
+        let mut x0 = 0;
+        while x0 < w {
+            let pv = |v: usize| -> &[f32; LANES] {
+                pix[v * pwid + x0..v * pwid + x0 + LANES].try_into().expect("inside the padded row")
+            };
+            let mut acc = [[0.0f32; LANES]; 3];
+            let mut wsum = [0.0f32; LANES];
+            for j in jlo..=jhi {
+                let e = &exp_ring[(j % RING) * EXPANDED * ew..];
+                for q in -2isize..=2 {
+                    let at = (x0 as isize + 4 * q + 8) as usize;
+                    let ev = |v: usize| -> &[f32; LANES] {
+                        e[v * ew + at..v * ew + at + LANES].try_into().expect("inside the expanded row")
+                    };
+                    let valid = ev(EXPANDED - 1);
+                    let mut wt = [0.0f32; LANES];
+                    let mut inv = [0.0f32; LANES];
+                    for l in 0..LANES {
+                        let mut d = 0.0f32;
                         for k in 0..3 {
-                            let d = design(&c, &p, k);
+                            let t = pv(k)[l] - ev(k)[l];
+                            d += t * t;
+                        }
+                        let near = q != -2 || (x0 + l) % SPARSITY == 0;
+                        let wgt = exp_vec(-d / (ev(9)[l] + pv(9)[l] + 1e-4)) + 1e-7;
+                        wt[l] = if near { valid[l] * wgt } else { 0.0 };
+                        inv[l] = 1.0 / (ev(10)[l] + pv(10)[l] + 0.01);
+                    }
+                    for l in 0..LANES {
+                        wsum[l] += wt[l];
+                    }
+                    for k in 0..3 {
+                        let b = |t: usize| ev(11 + k * COEFFS + t);
+                        for l in 0..LANES {
                             let mut pred = 0.0f32;
-                            for q in 0..COEFFS {
-                                pred += b[k * COEFFS + q] * d[q];
-                            }
-                            acc[k] += wt * pred;
+                            pred += b(0)[l] * 1.0;
+                            pred += b(1)[l] * ((pv(k)[l] - ev(k)[l]) * inv[l]);
+                            pred += b(2)[l] * (pv(3 + k)[l] - ev(3 + k)[l]);
+                            pred += b(3)[l] * (pv(6)[l] - ev(6)[l]);
+                            pred += b(4)[l] * (pv(7)[l] - ev(7)[l]);
+                            pred += b(5)[l] * (pv(8)[l] - ev(8)[l]);
+                            acc[k][l] += wt[l] * pred;
                         }
                     }
                 }
-                let inv = 1.0 / wsum.max(1e-7);
+            }
+            for l in 0..LANES.min(w - x0) {
+                let inv = 1.0 / wsum[l].max(1e-7);
                 for k in 0..3 {
-                    out.row_mut(k, yo)[x] = (acc[k] * inv).max(0.0);
+                    out.row_mut(k, yo)[x0 + l] = (acc[k][l] * inv).max(0.0);
                 }
             }
+            x0 += LANES;
         }
-    });
-    Ok(())
+    }
 }
 
 // ---- spatiotemporal filter ----------------------------------------------------------
