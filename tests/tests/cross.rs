@@ -400,6 +400,24 @@ mod method {
         assert!(one.iter().flatten().all(|v| v.is_finite()));
     }
 
+    /// Tiny and odd frame sizes run (the network's input is padded to a
+    /// multiple of 4), outputs finite.
+    #[test]
+    fn odd_and_tiny_frames_run() {
+        for (w, h) in [(1usize, 1usize), (3, 5), (17, 9), (9, 1)] {
+            let n = w * h;
+            let ramp = |k: f32| (0..3 * n).map(|i| 0.2 + k * (i % 7) as f32).collect::<Vec<f32>>();
+            let mut f = Frame::from_color("tiny.exr", w, h, ramp(0.3)).unwrap();
+            f.set(Buffer::ColorB, ramp(0.2)).unwrap();
+            f.set(Buffer::Albedo, vec![0.5; 3 * n]).unwrap();
+            f.set(Buffer::Motion, vec![0.0; 2 * n]).unwrap();
+            let frames = vec![f.clone(), f];
+            let (outs, losses) = run(&Settings { threads: 2, ..Settings::default() }, &frames);
+            assert!(losses.iter().all(|l| l.is_finite()), "{w}x{h}: {losses:?}");
+            assert!(outs.iter().all(|o| o.len() == 3 * n && o.iter().all(|v| v.is_finite())), "{w}x{h}");
+        }
+    }
+
     /// The denoised frames are far closer to the reference than the input.
     #[test]
     fn output_beats_the_mean_of_the_two_estimates() {
