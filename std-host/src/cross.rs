@@ -382,8 +382,19 @@ impl Denoiser for Cross {
                     |band, hb, y0, _| temporal::accumulate::<F32>(isa, &inp, &params, band, hb, y0),
                 )?;
             }
-            for (v, &hv) in bufs.valid.iter_mut().zip(&hist) {
-                *v = if hv > 0.0 { 1.0 } else { 0.0 };
+            // Valid where the pixel and its 3x3 neighbours (inside the
+            // image) all reprojected: the authors' erosion of the success
+            // mask against bilinear-reprojection artefacts at its edges.
+            for y in 0..h {
+                for x in 0..w {
+                    let mut ok = true;
+                    for yy in y.saturating_sub(1)..(y + 2).min(h) {
+                        for xx in x.saturating_sub(1)..(x + 2).min(w) {
+                            ok &= hist[yy * w + xx] > 0.0;
+                        }
+                    }
+                    bufs.valid[y * w + x] = if ok { 1.0 } else { 0.0 };
+                }
             }
             Ok(())
         })?;
