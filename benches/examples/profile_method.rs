@@ -1,15 +1,13 @@
 //! Per-stage times of a method on the 1280x720 tiled Cornell frame:
-//! `profile_method [atrous|sure-atrous] [threads] [reps]` (release);
+//! `profile_method [METHOD] [threads] [reps]` (release; METHOD as `--method`
+//! takes it, default atrous; `LAYERS=3` for WSKP-3);
 //! `NOPAIR=1` drops the frame's second half-sample image.
 use mcdenoise::methods::{self, MethodKind, Settings, Timings};
 use mcdenoise_benches::tiled_cornell;
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
-    let kind = match args.get(1).map(String::as_str) {
-        Some("sure-atrous") => MethodKind::SureAtrous,
-        _ => MethodKind::Atrous,
-    };
+    let kind = MethodKind::parse(args.get(1).map_or("atrous", String::as_str)).unwrap();
     let threads: usize = args.get(2).and_then(|v| v.parse().ok()).unwrap_or(1);
     let reps: u32 = args.get(3).and_then(|v| v.parse().ok()).unwrap_or(10);
     let mut frame = tiled_cornell();
@@ -17,8 +15,16 @@ fn main() {
         // The single-estimate path: no second half-sample image.
         frame.remove(mcdenoise::frame::Buffer::ColorB);
     }
-    let settings = Settings { threads, ..Settings::default() };
-    let mut den = methods::create(kind, &settings, &frame).unwrap();
+    let layers: usize = std::env::var("LAYERS").ok().and_then(|v| v.parse().ok()).unwrap_or(6);
+    let settings = Settings { threads, layers, ..Settings::default() };
+    // WSKP-3 has no bundled weights; its speed does not depend on their values.
+    let mut den = if kind == MethodKind::Wskp && layers == 3 {
+        let net = mcdenoise::wskp::net(3).unwrap();
+        let params = net.init(1);
+        Box::new(mcdenoise::wskp::Wskp::<mcdenoise_core::F32>::from_params(&frame, net, params, 3).unwrap())
+    } else {
+        methods::create(kind, &settings, &frame).unwrap()
+    };
     let mut ctx = methods::context(&settings).unwrap();
     let mut warm = Timings::default();
     den.denoise(&frame, &mut ctx, &mut warm).unwrap();

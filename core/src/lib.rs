@@ -102,6 +102,7 @@ pub(crate) mod math;
 pub mod pool;
 pub mod precision;
 pub mod real;
+pub mod regress;
 pub(crate) mod simd;
 pub mod softmax;
 pub mod temporal;

@@ -20,7 +20,7 @@ usage:
                                  write outputs and PNGs under ./mcdenoise-out/
   mcdenoise denoise --method M [options] INPUT... -o OUTDIR
                                  INPUT: frame files in order, or a directory (its .exr files by name)
-      --method M                 none | ta | atrous | sure-atrous | wskp | afn
+      --method M                 none | ta | atrous | sure-atrous | wskp | afn | cross
       --no-refine                afn: without the refinement network
       --precision P              f32 (default) | f16 | f16-arith | fixed
       --threads N                worker threads (default: all cores)
@@ -28,6 +28,9 @@ usage:
       --phi-color F              a-trous colour edge-stopping, in noise variances (default 64)
       --layers N                 wskp: 3 or 6 ImportanceNet layers (default 6)
       --weights FILE             learned methods: weights made by 'mcdenoise train' (default: bundled)
+      --seed N                   cross: seed of the initial random weights (default 2024)
+      --save-state FILE          cross: write the online network's weights and Adam state after each frame
+      --load-state FILE          cross: continue from a saved state instead of random weights
       --half                     write f16 EXR (default f32)
       --png                      also write a tone-mapped PNG preview per frame
       --timings                  print per-stage times and the memory taken (estimate, peak heap, peak resident)
@@ -146,6 +149,14 @@ fn parse_settings(flag: &str, value: &str, s: &mut Settings) -> Result<bool> {
             }
         }
         "--weights" => s.weights = Some(PathBuf::from(value)),
+        "--seed" => {
+            s.seed = value
+                .trim()
+                .parse::<u64>()
+                .map_err(|_| usage(format!("--seed: expected a whole number, got '{value}'")))?
+        }
+        "--save-state" => s.save_state = Some(PathBuf::from(value)),
+        "--load-state" => s.load_state = Some(PathBuf::from(value)),
         _ => return Ok(false),
     }
     Ok(true)
@@ -190,7 +201,10 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
                         max_memory =
                             Some(crate::memory::parse_size(&v).map_err(|e| usage(format!("--max-memory: {e}")))?);
                     }
-                    Some(f @ ("--precision" | "--threads" | "--isa" | "--phi-color" | "--layers" | "--weights")) => {
+                    Some(
+                        f @ ("--precision" | "--threads" | "--isa" | "--phi-color" | "--layers" | "--weights"
+                        | "--seed" | "--save-state" | "--load-state"),
+                    ) => {
                         let f = f.to_string();
                         let v = text(&f, it.next())?;
                         parse_settings(&f, &v, &mut settings)?;
@@ -199,8 +213,9 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
                     _ => inputs.push(PathBuf::from(a)),
                 }
             }
-            let method = method
-                .ok_or_else(|| usage("denoise: --method is required (none, ta, atrous, sure-atrous, wskp, afn)"))?;
+            let method = method.ok_or_else(|| {
+                usage("denoise: --method is required (none, ta, atrous, sure-atrous, wskp, afn, cross)")
+            })?;
             let outdir = outdir.ok_or_else(|| usage("denoise: -o OUTDIR is required"))?;
             if inputs.is_empty() {
                 return Err(usage("denoise: no INPUT given (frame files or a directory)"));

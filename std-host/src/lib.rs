@@ -7,6 +7,7 @@
 pub mod afn;
 pub mod aligned;
 pub mod cleanup;
+pub mod cross;
 pub mod error;
 pub mod frame;
 pub mod memory;

@@ -257,3 +257,30 @@ fn train_needs_its_arguments() {
         "/nonexistent/d",
     );
 }
+
+/// `--method cross` on frames without the second estimate: one line naming
+/// `B.R,B.G,B.B`, exit 1; a bad `--seed` names the flag.
+#[test]
+fn cross_without_second_estimate_names_the_channels() {
+    let dir = std::env::temp_dir().join(format!("mcdenoise-cli-cross-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let f = rgb_frame(&dir, "frame_0000.exr", 9, 7);
+    let out_dir = dir.join("out");
+    let out = run(&["denoise", "--method", "cross", f.to_str().unwrap(), "-o", out_dir.to_str().unwrap()]);
+    assert_fails(&out, 1, "B.R,B.G,B.B");
+    let out =
+        run(&["denoise", "--method", "cross", "--seed", "x", f.to_str().unwrap(), "-o", out_dir.to_str().unwrap()]);
+    assert_fails(&out, 2, "--seed");
+    let out = run(&[
+        "denoise",
+        "--method",
+        "cross",
+        "--load-state",
+        dir.join("missing.safetensors").to_str().unwrap(),
+        fixtures().join("seq_small").to_str().unwrap(),
+        "-o",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert_fails(&out, 1, "missing.safetensors");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -20,7 +20,7 @@ mod atrous;
 mod basic;
 
 pub use atrous::Atrous;
-pub use basic::{scene_scale, Passthrough, TemporalAccumulation};
+pub use basic::{scene_scale, Passthrough, TemporalAccumulation, POSITION_TOLERANCE};
 
 /// The methods, by command-line name.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -37,17 +37,20 @@ pub enum MethodKind {
     Wskp,
     /// The adaptive fusion network: 1 spp and TA filtered at two scales, fused, refined.
     Afn,
+    /// Cross-regression pilots and a U-Net trained online, one step per frame.
+    Cross,
 }
 
 impl MethodKind {
     /// Every method.
-    pub const ALL: [MethodKind; 6] = [
+    pub const ALL: [MethodKind; 7] = [
         MethodKind::None,
         MethodKind::Ta,
         MethodKind::Atrous,
         MethodKind::SureAtrous,
         MethodKind::Wskp,
         MethodKind::Afn,
+        MethodKind::Cross,
     ];
 
     /// The command-line name.
@@ -59,6 +62,7 @@ impl MethodKind {
             MethodKind::Wskp => "wskp",
             MethodKind::Afn => "afn",
             MethodKind::SureAtrous => "sure-atrous",
+            MethodKind::Cross => "cross",
         }
     }
 
@@ -118,6 +122,16 @@ impl Timings {
     pub fn stages(&self) -> &[(&'static str, Duration, u32)] {
         &self.stages
     }
+    /// Adds a measured duration to `stage` (one call).
+    pub fn add(&mut self, stage: &'static str, d: Duration) {
+        match self.stages.iter_mut().find(|s| s.0 == stage) {
+            Some(s) => {
+                s.1 += d;
+                s.2 += 1;
+            }
+            None => self.stages.push((stage, d, 1)),
+        }
+    }
     /// Sum over stages.
     pub fn total(&self) -> Duration {
         self.stages.iter().map(|s| s.1).sum()
@@ -141,6 +155,12 @@ pub struct Settings {
     pub weights: Option<std::path::PathBuf>,
     /// AFN: with the refinement network.
     pub refine: bool,
+    /// Online methods: the seed of the initial weights.
+    pub seed: u64,
+    /// Online methods: write the network's state here after every frame.
+    pub save_state: Option<std::path::PathBuf>,
+    /// Online methods: start from this saved state instead of random weights.
+    pub load_state: Option<std::path::PathBuf>,
 }
 
 impl Default for Settings {
@@ -153,6 +173,9 @@ impl Default for Settings {
             layers: 6,
             weights: None,
             refine: true,
+            seed: crate::cross::SEED,
+            save_state: None,
+            load_state: None,
         }
     }
 }
@@ -179,6 +202,19 @@ pub trait Denoiser {
 
 /// Builds the denoiser for `kind` from the sequence's first frame.
 pub fn create(kind: MethodKind, settings: &Settings, first: &Frame) -> Result<Box<dyn Denoiser>> {
+    if kind == MethodKind::Cross {
+        // Trained online in f32 whatever the storage precision asked for.
+        let mut c = crate::cross::Cross::new(
+            first,
+            settings.seed,
+            settings.load_state.as_deref(),
+            settings.save_state.clone(),
+        )?;
+        if settings.precision != PrecisionKind::F32 {
+            c.note_precision(settings.precision.name());
+        }
+        return Ok(Box::new(c));
+    }
     match settings.precision {
         PrecisionKind::F32 => create_in::<mcdenoise_core::F32>(kind, settings, first),
         PrecisionKind::F16 => create_in::<mcdenoise_core::F16>(kind, settings, first),
@@ -201,6 +237,7 @@ fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Fr
             let file = crate::weights::afn(settings.weights.as_deref())?;
             Box::new(crate::afn::Afn::<P>::new(first, &file, settings.refine)?)
         }
+        MethodKind::Cross => unreachable!("built above"),
     })
 }
 
@@ -224,6 +261,7 @@ fn footprint_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, info: &
         MethodKind::SureAtrous => Atrous::<P>::footprint(info, true, settings.threads),
         MethodKind::Wskp => crate::wskp::Wskp::<P>::footprint(info, settings.layers, settings.threads),
         MethodKind::Afn => crate::afn::Afn::<P>::footprint(info, settings.threads),
+        MethodKind::Cross => crate::cross::Cross::footprint(info),
     }
 }
 

@@ -510,6 +510,31 @@ impl Workspace {
         }
     }
 
+    /// Floats a workspace of `net` for crops of `w x h` holds (every tensor
+    /// and its gradient, two temporaries of the largest, the conv scratch),
+    /// besides a model's own `aux` buffers and the per-parameter gradients.
+    pub fn floats(net: &Net, w: usize, h: usize) -> usize {
+        let sizes = (0..net.tensors.len()).map(|t| {
+            let (tw, th) = net.size(t, w, h);
+            net.tensors[t].c * tw * th
+        });
+        let (sum, largest) = sizes.fold((0, 0), |(s, l), n| (s + n, l.max(n)));
+        let scratch = net
+            .convs
+            .iter()
+            .map(|c| {
+                conv::conv2d_scratch_len::<F32>(c.k(), c.cin, c.spec.cout, w).max(cgrad::grad_input_scratch_len(
+                    c.k(),
+                    c.cin,
+                    c.spec.cout,
+                    w,
+                ))
+            })
+            .max()
+            .unwrap_or(0);
+        2 * sum + 2 * largest + scratch
+    }
+
     /// The input's gradient after [`Workspace::backward`] (with
     /// [`Workspace::want_input_grad`]).
     pub fn input_grad(&self) -> &[f32] {

@@ -1,0 +1,558 @@
+//! Cross-regression online denoiser (Choi et al. 2024, "Online Neural
+//! Denoising with Cross-Regression for Interactive Rendering").
+//!
+//! Per frame, from the two half-sample estimates A (`R,G,B`) and B
+//! (`B.R,B.G,B.B`) in `log1p` colour:
+//! 1. cross-regression ([`mcdenoise_core::regress`]): features and weights
+//!    from A fitted to B gives pilot A, and the other way round pilot B;
+//! 2. reprojection of the previous output and pilots (the core's temporal
+//!    reprojection with the blend forced to the history: motion vectors, or
+//!    world positions, with its position and normal tests);
+//! 3. a U-Net (3x3 ReLU convs 8,8 / 16,16 / 32,32 with 2x2 max pools,
+//!    nearest upsampling with skip concatenation back to 16,16 and 8, a 1x1
+//!    head to 6 raw outputs) on 15 planes: both pilots, the warped previous
+//!    output, albedo, normal;
+//! 4. the 11x11 spatiotemporal cross-bilateral filter of both pilots;
+//! 5. the loss `relMSE(out_A, pilot_B) + relMSE(out_B, pilot_A)` and the same
+//!    against the reprojected previous pilots (0.5 each; where nothing
+//!    reprojects, the current pilots), its gradient through the filter and the
+//!    network, and exactly one Adam step (lr 1e-3) — the network starts from
+//!    random weights at the first frame.
+//!
+//! The frame is cut into horizontal strips (a fixed count for the frame
+//! height, not the thread count) run as crops with a 24-row halo (more than
+//! the network's receptive field), so the network's passes run in parallel
+//! and the result does not depend on the thread count.
+
+use std::path::PathBuf;
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use mcdenoise_core::conv::Activation;
+use mcdenoise_core::regress::{self, FilterInputs, RegressionInputs};
+use mcdenoise_core::temporal::{self, TemporalInputs, TemporalParams};
+use mcdenoise_core::{View, ViewMut, F32};
+
+use crate::error::{HostError, Result};
+use crate::frame::{Buffer, Frame};
+use crate::methods::{scene_scale, Ctx, Denoiser, Plan, Timings, POSITION_TOLERANCE};
+use crate::nn::weights::{self, File, Form};
+use crate::nn::{Conv, Layer, Net, NetDesc, Trainer};
+
+/// Network input planes.
+pub const CIN: usize = 15;
+/// Adam's learning rate.
+pub const LR: f32 = 1e-3;
+/// The relMSE's epsilon.
+pub const REL_EPS: f32 = 1e-2;
+/// Rows of halo around each strip (a multiple of 4, over the receptive field).
+pub const HALO: usize = 24;
+/// Default seed of the initial weights.
+pub const SEED: u64 = 2024;
+
+/// The U-Net.
+pub fn net() -> Net {
+    let conv = |k, cout, act| Layer::Conv(Conv { k, cout, act, repvgg: false, bias: true });
+    let relu = |c| conv(3, c, Activation::Relu);
+    let layers = vec![
+        relu(8),
+        relu(8),
+        Layer::Save,
+        Layer::MaxPool,
+        relu(16),
+        relu(16),
+        Layer::Save,
+        Layer::MaxPool,
+        relu(32),
+        relu(32),
+        Layer::Upsample { bilinear: false },
+        Layer::Concat,
+        relu(16),
+        relu(16),
+        Layer::Upsample { bilinear: false },
+        Layer::Concat,
+        relu(8),
+        conv(1, regress::PARAMS, Activation::Identity),
+    ];
+    Net::new(NetDesc { cin: CIN, layers }).expect("the U-Net's layers fit together")
+}
+
+/// The frame's strips: `(crop start, tile start, tile end)` in rows, crops
+/// `crop_h` rows of the padded frame.
+fn strips(h: usize, hp: usize) -> (Vec<(usize, usize, usize)>, usize) {
+    let n = ((h + 90) / 180).max(1);
+    let tile = h.div_ceil(n).div_ceil(4) * 4;
+    let crop_h = (tile + 2 * HALO).min(hp);
+    let mut out = Vec::new();
+    let mut t0 = 0;
+    while t0 < h {
+        let t1 = (t0 + tile).min(h);
+        let c0 = t0.saturating_sub(HALO).min(hp - crop_h);
+        out.push((c0, t0, t1));
+        t0 = t1;
+    }
+    (out, crop_h)
+}
+
+/// What the next frame needs of this one.
+struct Prev {
+    /// Output (log), pilot A, pilot B: 9 planes.
+    colors: Vec<f32>,
+    normal: Option<Vec<f32>>,
+    position: Option<Vec<f32>>,
+}
+
+/// Per-frame buffers, kept.
+struct Bufs {
+    a: Vec<f32>,
+    b: Vec<f32>,
+    var_a: Vec<f32>,
+    var_b: Vec<f32>,
+    pa: Vec<f32>,
+    pb: Vec<f32>,
+    /// Warped output, pilot A, pilot B (9 planes).
+    warped: Vec<f32>,
+    valid: Vec<f32>,
+    albedo: Vec<f32>,
+    normal: Vec<f32>,
+    /// The network input at the padded size.
+    input: Vec<f32>,
+    /// Outputs A, B and combined (log), 9 planes.
+    out: Vec<f32>,
+}
+
+/// Timing of the online step's parts, summed over the crops (CPU time).
+#[derive(Default)]
+struct StepClock {
+    fill_end: Vec<Option<Instant>>,
+    forward: Duration,
+    head: Duration,
+}
+
+/// The `cross` method.
+pub struct Cross {
+    plan: Plan,
+    trainer: Option<Trainer>,
+    net: Net,
+    init: Vec<f32>,
+    adam: Option<(Vec<f32>, Vec<f32>, u64)>,
+    params: TemporalParams,
+    prev: Option<Prev>,
+    bufs: Option<Bufs>,
+    save_state: Option<PathBuf>,
+    seed: u64,
+    /// The last frame's loss.
+    pub last_loss: f32,
+    /// Frames seen.
+    pub frames: u64,
+}
+
+fn require_b(f: &Frame) -> Result<()> {
+    f.require(Buffer::ColorB, "cross (cross-regression needs two independent estimates)").map(|_| ())
+}
+
+impl Cross {
+    /// Memory per frame (see [`crate::memory`]), in f32 whatever the
+    /// precision: the per-frame buffers (54 planes, the network input at the
+    /// padded size), what the next frame reprojects (output and pilots,
+    /// normal, position: 15), and the online step's workspaces, one per
+    /// strip of `crop_h` padded rows (every U-Net tensor and its gradient,
+    /// the filter's 9 + 6 planes per crop), kept from frame to frame; during
+    /// a frame the reprojection's temporaries, then the next frame's history
+    /// beside this one's and the output.
+    pub fn footprint(info: &crate::frame::FrameInfo) -> crate::memory::Footprint {
+        let (w, h) = (info.width.max(1), info.height.max(1));
+        let (wp, hp) = (w.div_ceil(4) * 4, h.div_ceil(4) * 4);
+        let (strips, crop_h) = strips(h, hp);
+        let crop = crate::nn::Workspace::floats(&net(), wp, crop_h) + 15 * w * crop_h + regress::filter_scratch_len(w);
+        let per_px = |floats: usize| (4 * floats as u64).div_ceil((w * h) as u64);
+        let workspaces = per_px(strips.len() * crop);
+        let input = per_px(CIN * wp * hp);
+        let kept = 4 * (39 + 15) + input + workspaces;
+        let mut l = crate::memory::Ledger::default();
+        l.alloc(kept).temp(4 * 5).alloc(4 * 15).alloc(12);
+        crate::memory::Footprint { kept, peak: l.peak(), scratch: 0 }
+    }
+
+    /// For a sequence starting with `first`; `load` continues from a saved
+    /// state, `save` writes the state after every frame.
+    pub fn new(first: &Frame, seed: u64, load: Option<&std::path::Path>, save: Option<PathBuf>) -> Result<Cross> {
+        require_b(first)?;
+        let net = net();
+        let mut plan = Plan::default();
+        plan.built.extend(["log1p", "cross-regression (A->B, B->A)"]);
+        let temporal = first.has(Buffer::Motion) || first.has(Buffer::Position);
+        if temporal {
+            plan.built.push("reprojection");
+        } else {
+            plan.skipped.push(("reprojection", "no motion and no position".into()));
+        }
+        plan.built.extend(["U-Net", "spatiotemporal filter 11x11", "relMSE loss", "one Adam step"]);
+        for b in [Buffer::Albedo, Buffer::Normal] {
+            if !first.has(b) {
+                plan.skipped.push((b.name(), "not in the input: zero planes".into()));
+            }
+        }
+        let (init, adam) = match load {
+            Some(path) => {
+                let file = File::read(path)?;
+                let p = file.params(&net, "cross", &["adam.m", "adam.v"])?;
+                let m = file.tensor("adam.m", &[net.params])?;
+                let v = file.tensor("adam.v", &[net.params])?;
+                let t = file
+                    .meta("adam_t")
+                    .and_then(|s| s.parse::<u64>().ok())
+                    .ok_or_else(|| HostError::bad(path, "metadata adam_t missing or not a number"))?;
+                plan.built.insert(0, "state loaded");
+                (p, Some((m, v, t)))
+            }
+            None => (net.init(seed), None),
+        };
+        let params = TemporalParams {
+            pos_limit: POSITION_TOLERANCE * scene_scale(first),
+            alpha_min: 1e-30,
+            history_cap: f32::MAX,
+            ..TemporalParams::default()
+        };
+        Ok(Cross {
+            plan,
+            trainer: None,
+            net,
+            init,
+            adam,
+            params,
+            prev: None,
+            bufs: None,
+            save_state: save,
+            seed,
+            last_loss: 0.0,
+            frames: 0,
+        })
+    }
+
+    /// Records that a precision other than f32 was asked for.
+    pub fn note_precision(&mut self, name: &str) {
+        self.plan.skipped.push(("precision", format!("{name} asked for; online training runs in f32")));
+    }
+
+    /// The network's parameters now.
+    pub fn params(&self) -> &[f32] {
+        self.trainer.as_ref().map_or(&self.init, |t| &t.params)
+    }
+
+    /// Writes the network's weights and Adam's state.
+    pub fn save(&self, path: &std::path::Path) -> Result<()> {
+        let owned = weights::param_tensors(&self.net, self.params(), Form::Branches);
+        let mut tensors: Vec<weights::Tensor<'_>> =
+            owned.iter().map(|(n, s, d)| weights::Tensor { name: n.clone(), shape: s.clone(), data: d }).collect();
+        let empty = vec![0.0f32; self.net.params];
+        let (m, v, t) = match &self.trainer {
+            Some(tr) => (&tr.adam.m[..], &tr.adam.v[..], tr.adam.t),
+            None => match &self.adam {
+                Some((m, v, t)) => (&m[..], &v[..], *t),
+                None => (&empty[..], &empty[..], 0),
+            },
+        };
+        tensors.push(weights::Tensor { name: "adam.m".into(), shape: vec![self.net.params], data: m });
+        tensors.push(weights::Tensor { name: "adam.v".into(), shape: vec![self.net.params], data: v });
+        let meta = [
+            ("format", "mcdenoise-cross".to_string()),
+            ("version", "1".to_string()),
+            ("form", "branches".to_string()),
+            ("adam_t", t.to_string()),
+            ("seed", self.seed.to_string()),
+        ];
+        weights::save(path, &tensors, &meta)
+    }
+}
+
+/// `log1p(max(v, 0))`.
+fn log1p_into(src: &[f32], dst: &mut [f32]) {
+    for (d, &s) in dst.iter_mut().zip(src) {
+        *d = s.max(0.0).ln_1p();
+    }
+}
+
+/// Replicates the edges of a `w x h` plane set into the top-left of a `wp x hp` one.
+fn pad_into(src: &[f32], c: usize, w: usize, h: usize, dst: &mut [f32], wp: usize, hp: usize) {
+    for ch in 0..c {
+        for y in 0..hp {
+            let sy = y.min(h - 1);
+            let srow = &src[(ch * h + sy) * w..(ch * h + sy + 1) * w];
+            let drow = &mut dst[(ch * hp + y) * wp..(ch * hp + y + 1) * wp];
+            drow[..w].copy_from_slice(srow);
+            let last = srow[w - 1];
+            drow[w..].fill(last);
+        }
+    }
+}
+
+impl Denoiser for Cross {
+    fn name(&self) -> &'static str {
+        "cross"
+    }
+    fn plan(&self) -> &Plan {
+        &self.plan
+    }
+    fn denoise(&mut self, f: &Frame, ctx: &mut Ctx, t: &mut Timings) -> Result<Vec<f32>> {
+        require_b(f)?;
+        let (w, h) = (f.width, f.height);
+        let n = w * h;
+        let (wp, hp) = (w.div_ceil(4) * 4, h.div_ceil(4) * 4);
+        let isa = ctx.isa;
+        let (strips, crop_h) = strips(h, hp);
+        if self.trainer.is_none() {
+            // MCDENOISE_CROSS_LR overrides the learning rate (for ablations only).
+            let lr = std::env::var("MCDENOISE_CROSS_LR").ok().and_then(|v| v.parse().ok()).unwrap_or(LR);
+            let mut tr = Trainer::new(self.net.clone(), self.init.clone(), strips.len(), wp, crop_h, lr, 0.0);
+            if let Some((m, v, step)) = self.adam.take() {
+                tr.adam.m = m;
+                tr.adam.v = v;
+                tr.adam.t = step;
+            }
+            self.trainer = Some(tr);
+        }
+        let trainer = self.trainer.as_mut().expect("just built");
+        if trainer.workspaces()[0][0].size() != (wp, crop_h) {
+            return Err(HostError::bad(&f.path, "frame size differs from the sequence's first frame"));
+        }
+        let bufs = self.bufs.get_or_insert_with(|| Bufs {
+            a: vec![0.0; 3 * n],
+            b: vec![0.0; 3 * n],
+            var_a: vec![0.0; n],
+            var_b: vec![0.0; n],
+            pa: vec![0.0; 3 * n],
+            pb: vec![0.0; 3 * n],
+            warped: vec![0.0; 9 * n],
+            valid: vec![0.0; n],
+            albedo: vec![0.0; 3 * n],
+            normal: vec![0.0; 3 * n],
+            input: vec![0.0; CIN * wp * hp],
+            out: vec![0.0; 9 * n],
+        });
+        // 1. Inputs and the cross-regression.
+        t.time("regression", || -> Result<()> {
+            log1p_into(f.require(Buffer::Color, "cross")?, &mut bufs.a);
+            log1p_into(f.require(Buffer::ColorB, "cross")?, &mut bufs.b);
+            match f.get(Buffer::Albedo) {
+                Some(v) => bufs.albedo.copy_from_slice(v),
+                None => bufs.albedo.fill(0.0),
+            }
+            match f.get(Buffer::Normal) {
+                Some(v) => bufs.normal.copy_from_slice(v),
+                None => bufs.normal.fill(0.0),
+            }
+            for (src, var) in [(&bufs.a, &mut bufs.var_a), (&bufs.b, &mut bufs.var_b)] {
+                let sv = View::new(src, 3, w, h)?;
+                ctx.pool.bands(ViewMut::new(var, 1, w, h)?, 1, &mut ctx.scratch, 0, |band, y0, _| {
+                    regress::variance_rows(isa, &sv, band, y0)
+                })?;
+            }
+            let len = regress::regression_scratch_len(w);
+            for (x, var, y, out) in
+                [(&bufs.a, &bufs.var_a, &bufs.b, &mut bufs.pa), (&bufs.b, &bufs.var_b, &bufs.a, &mut bufs.pb)]
+            {
+                let inp = RegressionInputs {
+                    x: View::new(x, 3, w, h)?,
+                    var: View::new(var, 1, w, h)?,
+                    y: View::new(y, 3, w, h)?,
+                    albedo: View::new(&bufs.albedo, 3, w, h)?,
+                    normal: View::new(&bufs.normal, 3, w, h)?,
+                };
+                ctx.pool.bands(ViewMut::new(out, 3, w, h)?, 4, &mut ctx.scratch, len, |band, y0, s| {
+                    regress::regression_rows(isa, &inp, band, y0, s)
+                })?;
+            }
+            Ok(())
+        })?;
+        // 2. Reprojection of the previous output and pilots.
+        t.time("reprojection", || -> Result<()> {
+            bufs.valid.fill(0.0);
+            // MCDENOISE_CROSS_NO_TEMPORAL=1: spatial only (for ablations).
+            if std::env::var("MCDENOISE_CROSS_NO_TEMPORAL").is_ok_and(|v| v == "1") {
+                return Ok(());
+            }
+            let Some(prev) = &self.prev else { return Ok(()) };
+            let motion = f.view(Buffer::Motion);
+            let position = f.view(Buffer::Position);
+            let normal = f.view(Buffer::Normal);
+            if motion.is_none() && (position.is_none() || prev.position.is_none()) {
+                return Ok(());
+            }
+            let zeros = vec![0.0f32; 3 * n];
+            let big = vec![1e30f32; n];
+            let mut hist = vec![0.0f32; n];
+            for k in 0..3 {
+                let inp = TemporalInputs {
+                    color: View::new(&zeros, 3, w, h)?,
+                    normal,
+                    position,
+                    motion,
+                    prev_color: View::new(&prev.colors[3 * k * n..3 * (k + 1) * n], 3, w, h)?,
+                    prev_normal: prev.normal.as_deref().map(|v| View::new(v, 3, w, h)).transpose()?,
+                    prev_position: prev.position.as_deref().map(|v| View::new(v, 3, w, h)).transpose()?,
+                    prev_history: View::new(&big, 1, w, h)?,
+                };
+                let params = self.params;
+                let out = &mut bufs.warped[3 * k * n..3 * (k + 1) * n];
+                ctx.pool.bands2(
+                    ViewMut::new(out, 3, w, h)?,
+                    ViewMut::new(&mut hist, 1, w, h)?,
+                    1,
+                    &mut ctx.scratch,
+                    0,
+                    |band, hb, y0, _| temporal::accumulate::<F32>(isa, &inp, &params, band, hb, y0),
+                )?;
+            }
+            // Valid where the pixel and its 3x3 neighbours (inside the
+            // image) all reprojected: the authors' erosion of the success
+            // mask against bilinear-reprojection artefacts at its edges.
+            for y in 0..h {
+                for x in 0..w {
+                    let mut ok = true;
+                    for yy in y.saturating_sub(1)..(y + 2).min(h) {
+                        for xx in x.saturating_sub(1)..(x + 2).min(w) {
+                            ok &= hist[yy * w + xx] > 0.0;
+                        }
+                    }
+                    bufs.valid[y * w + x] = if ok { 1.0 } else { 0.0 };
+                }
+            }
+            Ok(())
+        })?;
+        // Where nothing reprojects: the previous output stands in as the mean
+        // of the pilots, the previous pilots as the current ones.
+        for i in 0..n {
+            if bufs.valid[i] == 0.0 {
+                for c in 0..3 {
+                    let (a, b) = (bufs.pa[c * n + i], bufs.pb[c * n + i]);
+                    bufs.warped[c * n + i] = 0.5 * (a + b);
+                    bufs.warped[(3 + c) * n + i] = a;
+                    bufs.warped[(6 + c) * n + i] = b;
+                }
+            }
+        }
+        // 3. The network input, padded to a multiple of 4.
+        {
+            let parts: [&[f32]; 5] = [&bufs.pa, &bufs.pb, &bufs.warped[..3 * n], &bufs.albedo, &bufs.normal];
+            for (k, p) in parts.iter().enumerate() {
+                pad_into(p, 3, w, h, &mut bufs.input[3 * k * wp * hp..3 * (k + 1) * wp * hp], wp, hp);
+            }
+        }
+        // 4. Forward, filter, loss, backward, Adam: one step.
+        let clock = Mutex::new(StepClock { fill_end: vec![None; strips.len()], ..StepClock::default() });
+        let scale = 1.0 / (3 * n) as f32;
+        let b: &Bufs = bufs;
+        let fill = |i: usize, wss: &mut [crate::nn::Workspace]| -> Result<()> {
+            let (c0, _, _) = strips[i];
+            let dst = wss[0].input_mut();
+            for ch in 0..CIN {
+                let src = &b.input[(ch * hp + c0) * wp..(ch * hp + c0 + crop_h) * wp];
+                dst[ch * crop_h * wp..(ch + 1) * crop_h * wp].copy_from_slice(src);
+            }
+            clock.lock().expect("clock").fill_end[i] = Some(Instant::now());
+            Ok(())
+        };
+        let head = |i: usize, _nets: &crate::nn::Nets<'_>, wss: &mut [crate::nn::Workspace]| -> Result<f32> {
+            let t_head = Instant::now();
+            {
+                let mut c = clock.lock().expect("clock");
+                if let Some(e) = c.fill_end[i] {
+                    c.forward += t_head - e;
+                }
+            }
+            let (c0, t0, t1) = strips[i];
+            let rows = t1 - t0;
+            let (out6, g6, aux) = wss[0].head_parts();
+            if aux.is_empty() {
+                aux.push(vec![0.0; 9 * w * crop_h]);
+                aux.push(vec![0.0; 6 * w * crop_h]);
+                aux.push(vec![0.0; regress::filter_scratch_len(w)]);
+            }
+            let [outs, grads, scratch] = &mut aux[..] else {
+                return Err(HostError::Kernel("cross: crop buffers".into()));
+            };
+            let inp = FilterInputs {
+                pilot_a: View::new(&b.pa, 3, w, h)?,
+                pilot_b: View::new(&b.pb, 3, w, h)?,
+                albedo: View::new(&b.albedo, 3, w, h)?,
+                normal: View::new(&b.normal, 3, w, h)?,
+                prev: View::new(&b.warped[..3 * n], 3, w, h)?,
+                valid: View::new(&b.valid, 1, w, h)?,
+            };
+            let off = (t0 - c0) * wp;
+            let pv = View::with_strides(&out6[off..], regress::PARAMS, w, rows, wp, wp * crop_h)?;
+            let mut ov = ViewMut::new(&mut outs[..9 * w * rows], 9, w, rows)?;
+            regress::filter_rows(isa, &inp, &pv, &mut ov, t0, scratch)?;
+            // The loss and its gradient by outputs A and B.
+            let mut loss = 0.0f64;
+            let g = &mut grads[..6 * w * rows];
+            let rel = |o: f32, y: f32| {
+                let d = 1.0 / (y * y + REL_EPS);
+                ((o - y) * (o - y) * d, 2.0 * (o - y) * d)
+            };
+            for r in 0..rows {
+                let y = t0 + r;
+                for x in 0..w {
+                    let (pi, oi) = (y * w + x, r * w + x);
+                    for c in 0..3 {
+                        let (oa, ob) = (outs[c * w * rows + oi], outs[(3 + c) * w * rows + oi]);
+                        let (la, ga) = rel(oa, b.pb[c * n + pi]);
+                        let (lb, gb) = rel(ob, b.pa[c * n + pi]);
+                        let (ta, gta) = rel(oa, b.warped[(6 + c) * n + pi]);
+                        let (tb, gtb) = rel(ob, b.warped[(3 + c) * n + pi]);
+                        loss += 0.25 * (la + lb + ta + tb) as f64;
+                        g[c * w * rows + oi] = 0.25 * (ga + gta) * scale;
+                        g[(3 + c) * w * rows + oi] = 0.25 * (gb + gtb) * scale;
+                    }
+                }
+            }
+            g6.fill(0.0);
+            let gv = View::new(g, 6, w, rows)?;
+            let mut dv = ViewMut::with_strides(&mut g6[off..], regress::PARAMS, w, rows, wp, wp * crop_h)?;
+            regress::filter_grad_rows(isa, &inp, &pv, &gv, &mut dv, t0, scratch)?;
+            clock.lock().expect("clock").head += t_head.elapsed();
+            Ok((loss * scale as f64) as f32)
+        };
+        let t_step = Instant::now();
+        let stats = trainer.step(&ctx.pool, isa, &fill, &head, true)?;
+        let wall = t_step.elapsed();
+        // Apportion the step's wall time by the CPU time of its parts.
+        {
+            let c = clock.lock().expect("clock");
+            let threads = ctx.pool.threads().min(strips.len()).max(1) as u32;
+            let (fwd, head) = (c.forward / threads, c.head / threads);
+            let fwd = fwd.min(wall);
+            let head = head.min(wall - fwd);
+            t.add("inference (U-Net forward)", fwd);
+            t.add("filter (forward, loss, backward)", head);
+            t.add("backpropagation + Adam", wall - fwd - head);
+        }
+        self.last_loss = stats.loss * strips.len() as f32;
+        self.frames += 1;
+        // Gather the crops' outputs.
+        let wss = trainer.workspaces();
+        for (i, &(_, t0, t1)) in strips.iter().enumerate() {
+            let rows = t1 - t0;
+            let o = &wss[i][0].aux[0];
+            for c in 0..9 {
+                bufs.out[c * n + t0 * w..c * n + t1 * w].copy_from_slice(&o[c * w * rows..(c + 1) * w * rows]);
+            }
+        }
+        // Keep what the next frame reprojects.
+        let mut colors = vec![0.0f32; 9 * n];
+        colors[..3 * n].copy_from_slice(&bufs.out[6 * n..9 * n]);
+        colors[3 * n..6 * n].copy_from_slice(&bufs.pa);
+        colors[6 * n..].copy_from_slice(&bufs.pb);
+        self.prev = Some(Prev {
+            colors,
+            normal: f.get(Buffer::Normal).map(|v| v.to_vec()),
+            position: f.get(Buffer::Position).map(|v| v.to_vec()),
+        });
+        let result = bufs.out[6 * n..9 * n].iter().map(|&v| v.exp_m1().max(0.0)).collect();
+        if let Some(path) = self.save_state.clone() {
+            self.save(&path)?;
+        }
+        Ok(result)
+    }
+}
