@@ -482,19 +482,7 @@ impl Workspace {
             })
             .collect();
         let largest = sizes.iter().copied().max().unwrap_or(0);
-        let scratch = net
-            .convs
-            .iter()
-            .map(|c| {
-                conv::conv2d_scratch_len::<F32>(c.k(), c.cin, c.spec.cout, w).max(cgrad::grad_input_scratch_len(
-                    c.k(),
-                    c.cin,
-                    c.spec.cout,
-                    w,
-                ))
-            })
-            .max()
-            .unwrap_or(0);
+        let scratch = Self::scratch_len(net, w);
         Workspace {
             w,
             h,
@@ -519,8 +507,14 @@ impl Workspace {
             net.tensors[t].c * tw * th
         });
         let (sum, largest) = sizes.fold((0, 0), |(s, l), n| (s + n, l.max(n)));
-        let scratch = net
-            .convs
+        let scratch = Self::scratch_len(net, w);
+        2 * sum + 2 * largest + scratch
+    }
+
+    /// The conv scratch a workspace of `net` holds for crops `w` wide: the
+    /// largest any layer's forward or input-gradient pass asks for.
+    fn scratch_len(net: &Net, w: usize) -> usize {
+        net.convs
             .iter()
             .map(|c| {
                 conv::conv2d_scratch_len::<F32>(c.k(), c.cin, c.spec.cout, w).max(cgrad::grad_input_scratch_len(
@@ -531,8 +525,7 @@ impl Workspace {
                 ))
             })
             .max()
-            .unwrap_or(0);
-        2 * sum + 2 * largest + scratch
+            .unwrap_or(0)
     }
 
     /// The input's gradient after [`Workspace::backward`] (with
