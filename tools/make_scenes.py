@@ -267,12 +267,97 @@ SCENES['heldout_object'] = scene(
     ], frames=24, seed=303, ref_spp=2048)
 
 
+# --- the test corpus (tests/fixtures/corpus, small enough to check in) -------
+# Rendered by tools/render-corpus.sh at 128x128 or 160x96; each frame carries
+# the second estimate B.*, and the tests also drop it to get the
+# single-estimate case.
+CORPUS = {}
+
+
+def small(sc, res, frames, ref_spp, aov_spp=64):
+    sc = dict(sc)
+    sc.update({'resolution': list(res), 'frames': frames, 'ref_spp': ref_spp, 'aov_spp': aov_spp})
+    return sc
+
+
+def cornell_box():
+    """A Cornell box written out: white floor, ceiling and back, red left and
+    green right walls, a ceiling light, a tall block and a ball."""
+    white, red, green = diffuse([0.73, 0.73, 0.73]), diffuse([0.63, 0.065, 0.05]), diffuse([0.14, 0.45, 0.091])
+    return [
+        obj('floor', 'rectangle', white, [1, 1, 1], [0, -1, 0], rotate=[1, 0, 0, -90]),
+        obj('ceiling', 'rectangle', white, [1, 1, 1], [0, 1, 0], rotate=[1, 0, 0, 90]),
+        obj('back', 'rectangle', white, [1, 1, 1], [0, 0, -1]),
+        obj('left', 'rectangle', red, [1, 1, 1], [-1, 0, 0], rotate=[0, 1, 0, 90]),
+        obj('right', 'rectangle', green, [1, 1, 1], [1, 0, 0], rotate=[0, 1, 0, -90]),
+        obj('block', 'cube', white, [0.28, 0.6, 0.28], [-0.35, -0.4, -0.4], rotate=[0, 1, 0, 18]),
+        obj('ball', 'sphere', white, 0.3, [0.4, -0.7, 0.2]),
+        area('light', [17, 12, 4], [0.23, 0.19, 1], [0, 0.995, 0]),
+    ]
+
+
+CORPUS['corpus_cornell'] = {
+    'description': "corpus: Mitsuba's built-in Cornell box (mi.cornell_box()), 256x256, box filter, static; rendered at 4, 16 and 64 spp",
+    'builtin': 'cornell_box', 'resolution': [256, 256], 'frames': 1, 'spp': 16, 'ref_spp': 4096, 'aov_spp': 64,
+    'seed': 405, 'max_depth': 8}
+
+CORPUS['corpus_box'] = small(scene(
+    'corpus: a Cornell box written out (red and green walls, a block and a ball, a ceiling light whose own albedo is 0), static; rendered at 4, 16 and 64 spp',
+    cam([{'t': 0, 'origin': [0, 0, 3.9], 'target': [0, 0, 0]}], fov=39.3),
+    cornell_box(), seed=401), (128, 128), 1, 8192)
+
+CORPUS['corpus_glossy'] = small(scene(
+    'corpus: a room of glossy materials (polished plastic floor, rough and smooth metals, a glossy wall), ceiling light; the camera pans and dollies',
+    cam([{'t': 0, 'origin': [-0.9, 1.5, 3.2], 'target': [-0.2, 0.7, -1.5]},
+         {'t': 1, 'origin': [0.5, 1.3, 2.6], 'target': [0.4, 0.7, -1.5]}], fov=60),
+    room(floor=plastic([0.35, 0.3, 0.25], 0.05), walls=(0.75, 0.72, 0.68)) + [
+        obj('glosswall', 'rectangle', plastic([0.2, 0.35, 0.55], 0.12), [1.2, 0.9, 1], [1.2, 1.2, -3.98]),
+        obj('chrome', 'sphere', metal('Cr', 0.02), 0.4, [-0.9, 0.4, -1.8]),
+        obj('brass', 'sphere', metal('Au', 0.2), 0.3, [0.5, 0.3, -1.0]),
+        obj('redball', 'sphere', plastic([0.6, 0.08, 0.05], 0.04), 0.25, [1.3, 0.25, -2.0]),
+        obj('plinth', 'cube', plastic([0.9, 0.9, 0.85], 0.3), [0.3, 0.35, 0.3], [-0.1, 0.35, -2.6]),
+        area('light', [10, 9.5, 9], [0.9, 0.6, 1], [0, 2.98, -1.5]),
+    ], seed=402), (160, 96), 3, 4096)
+
+CORPUS['corpus_hdr'] = small(scene(
+    'corpus: high dynamic range: a visible bulb of radiance 1000, a dark alcove near 1e-3, rough metals whose Mitsuba albedo AOV '
+    'exceeds 1 (rendered with --albedo mitsuba), a glass ball and a polished floor that make fireflies; the bulb moves',
+    cam([{'t': 0, 'origin': [0.0, 1.3, 3.0], 'target': [0.0, 0.9, -1.5]}], fov=62),
+    room(floor=plastic([0.2, 0.2, 0.22], 0.02), walls=(0.8, 0.8, 0.78), side=(0.01, 0.01, 0.01)) + [
+        obj('copper', 'sphere', metal('Cu', 0.15), 0.35, [-0.8, 0.35, -1.6]),
+        obj('alu', 'cylinder', metal('Al', 0.3), [0.25, 0.25, 0.9], [0.9, 0.0, -2.0], rotate=[1, 0, 0, -90]),
+        obj('glass', 'sphere', GLASS, 0.3, [0.1, 0.3, -0.8]),
+        obj('alcove', 'cube', diffuse([0.6, 0.6, 0.6]), [0.5, 0.6, 0.02], [-2.4, 0.6, -3.2]),
+        sphere_light('bulb', [1000, 900, 750], 0.04, [0.2, 1.9, -2.2],
+                     keys=[{'t': 0, 'translate': [-0.3, 1.9, -2.2]}, {'t': 1, 'translate': [0.5, 1.8, -2.0]}]),
+    ], seed=403), (160, 96), 2, 4096)
+
+CORPUS['corpus_dim'] = small(scene(
+    'corpus: a dim room lit only through a narrow door slit from a lamp outside (radiance about 1e-3..1e-1 inside), a little light moves',
+    cam([{'t': 0, 'origin': [1.5, 1.4, 3.2], 'target': [-0.5, 0.8, -1.5]}], fov=60),
+    [w for w in room(walls=(0.6, 0.55, 0.5)) if w['id'] != 'left'] + [
+        obj('door_l', 'cube', diffuse([0.5, 0.5, 0.5]), [0.02, 1.5, 1.8], [-3.98, 1.5, -2.1]),
+        obj('door_r', 'cube', diffuse([0.5, 0.5, 0.5]), [0.02, 1.5, 1.8], [-3.98, 1.5, 1.9]),
+        area('outside', [5, 4.3, 3.5], [1.0, 1.5, 1], [-4.6, 1.5, -0.2], rotate=[0, 1, 0, 90]),
+        obj('chair', 'cube', diffuse([0.5, 0.3, 0.2]), [0.4, 0.4, 0.4], [-1.0, 0.4, -1.5]),
+        obj('vase', 'sphere', plastic([0.2, 0.4, 0.3], 0.1), 0.3, [0.8, 0.3, -2.4]),
+        sphere_light('ember', [0.8, 0.4, 0.1], 0.05, [0.0, 0.3, -0.5],
+                     keys=[{'t': 0, 'translate': [-0.2, 0.3, -0.5]}, {'t': 1, 'translate': [0.2, 0.3, -0.5]}]),
+    ], seed=404), (160, 96), 2, 4096)
+
+
 def main():
     os.makedirs(OUT, exist_ok=True)
     for name, sc in SCENES.items():
         with open(os.path.join(OUT, name + '.json'), 'w') as f:
             json.dump(sc, f, indent=1)
     print('wrote %d scenes to %s' % (len(SCENES), OUT))
+    corpus = os.path.join(HERE, 'scenes', 'corpus')
+    os.makedirs(corpus, exist_ok=True)
+    for name, sc in CORPUS.items():
+        with open(os.path.join(corpus, name + '.json'), 'w') as f:
+            json.dump(sc, f, indent=1)
+    print('wrote %d scenes to %s' % (len(CORPUS), corpus))
 
 
 if __name__ == '__main__':

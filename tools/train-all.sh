@@ -20,8 +20,8 @@ for m in $MODELS; do
         wskp6) args=(--method wskp --layers 6 --steps 6000) ;;
         wskp3) args=(--method wskp --layers 3 --steps 5000) ;;
         afn) args=(--method afn --steps 2000 --val-every 500) ;;
-        afn-ta-only) args=(--method afn --variant ta-only --steps 3000) ;;
-        afn-1spp-only) args=(--method afn --variant 1spp-only --steps 3000) ;;
+        afn-ta-only) args=(--method afn --variant ta-only --steps 2000 --val-every 500) ;;
+        afn-1spp-only) args=(--method afn --variant 1spp-only --steps 2000 --val-every 500) ;;
         *) echo "unknown model $m" >&2; exit 2 ;;
     esac
     echo "[train-all] $m: ${args[*]}"

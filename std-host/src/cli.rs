@@ -25,7 +25,10 @@ usage:
       --precision P              f32 (default) | f16 | f16-arith | fixed
       --threads N                worker threads (default: all cores)
       --isa I                    scalar | avx2 | avx512 (default: the best this CPU has)
-      --phi-color F              a-trous colour edge-stopping, in noise variances (default 64)
+      --phi-color F              a-trous colour edge-stopping, in noise variances
+                                 (default 64 with B.*, 2048 with one estimate)
+      --firefly-clamp K          a-trous: clamp pixels brighter than their 5x5 neighbours' mean
+                                 + K standard deviations before filtering (default 6; 0: off)
       --layers N                 wskp: 3 or 6 ImportanceNet layers (default 6)
       --weights FILE             learned methods: weights made by 'mcdenoise train' (default: bundled)
       --seed N                   cross: seed of the initial random weights (default 2024)
@@ -137,6 +140,12 @@ fn parse_settings(flag: &str, value: &str, s: &mut Settings) -> Result<bool> {
                     || usage(format!("--phi-color: expected a positive number up to 1e6, got '{value}'")),
                 )?)
         }
+        "--firefly-clamp" => {
+            s.firefly_clamp =
+                value.trim().parse::<f32>().ok().filter(|v| v.is_finite() && *v >= 0.0 && *v <= 1e6).ok_or_else(
+                    || usage(format!("--firefly-clamp: expected a number from 0 (off) up to 1e6, got '{value}'")),
+                )?
+        }
         "--isa" => {
             s.isa = Isa::from_name(value)
                 .ok_or_else(|| usage(format!("--isa: expected scalar, avx2 or avx512; got '{value}'")))?
@@ -202,8 +211,8 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
                             Some(crate::memory::parse_size(&v).map_err(|e| usage(format!("--max-memory: {e}")))?);
                     }
                     Some(
-                        f @ ("--precision" | "--threads" | "--isa" | "--phi-color" | "--layers" | "--weights"
-                        | "--seed" | "--save-state" | "--load-state"),
+                        f @ ("--precision" | "--threads" | "--isa" | "--phi-color" | "--firefly-clamp" | "--layers"
+                        | "--weights" | "--seed" | "--save-state" | "--load-state"),
                     ) => {
                         let f = f.to_string();
                         let v = text(&f, it.next())?;

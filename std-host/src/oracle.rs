@@ -255,6 +255,7 @@ pub fn atrous_step(
     sigma_n: f64,
     sigma_plane: f64,
     sigma_depth: f64,
+    sigma_dist: f64,
     eps: f64,
     g: &AtrousGuides<'_>,
     src: &[f64],
@@ -295,6 +296,10 @@ pub fn atrous_step(
                             };
                             let (pd, qd) = (along(p), along(q));
                             t += 0.5 * (pd * pd + qd * qd) / (sigma_plane * sigma_plane);
+                            if sigma_dist > 0.0 {
+                                let d2: f64 = (0..3).map(|c| (pos[c * n + q] - pos[c * n + p]).powi(2)).sum();
+                                t += d2 / (sigma_dist * sigma_dist);
+                            }
                         }
                         (None, Some(pos), _) => {
                             let d2: f64 = (0..3).map(|c| (pos[c * n + q] - pos[c * n + p]).powi(2)).sum();

@@ -1002,7 +1002,7 @@ fn k_temporal_search_hist<P: HostPrecision>(
 
 /// The à-trous entry's parameters (level 1: hole 2).
 fn atrous_params() -> AtrousParams {
-    AtrousParams { sigma_plane: 0.05, ..AtrousParams::default() }
+    AtrousParams { sigma_plane: 0.05, sigma_distance: 0.2, ..AtrousParams::default() }
 }
 
 fn k_atrous<P: HostPrecision>(
@@ -1302,6 +1302,7 @@ fn o_atrous(i: &Inputs) -> Vec<f64> {
         p.sigma_normal as f64,
         p.sigma_plane as f64,
         p.sigma_depth as f64,
+        p.sigma_distance as f64,
         p.eps as f64,
         &g,
         &i.f64(Field::Radiance),

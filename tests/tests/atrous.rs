@@ -45,7 +45,9 @@ fn run_step(
     }
     let position = Img::random(3, w, h, -0.05, 0.05, seed ^ 3);
     let depth = Img::random(1, w, h, 0.5, 2.0, seed ^ 4);
-    let params = AtrousParams { sigma_plane: 0.03, ..AtrousParams::default() };
+    // Half the cases with the plane geometry's distance term.
+    let sigma_distance = if seed % 2 == 0 { 0.06 } else { 0.0 };
+    let params = AtrousParams { sigma_plane: 0.03, sigma_distance, ..AtrousParams::default() };
     let (nv, pv, dv) = match geo {
         Geo::Plane => (Some(normal.view()), Some(position.view()), None),
         Geo::Position => (None, Some(position.view()), None),
@@ -75,6 +77,7 @@ fn run_step(
         p.sigma_normal as f64,
         p.sigma_plane as f64,
         p.sigma_depth as f64,
+        p.sigma_distance as f64,
         p.eps as f64,
         &og,
         &src.to_f64(),
@@ -153,7 +156,7 @@ fn atrous_f16_simd_matches_scalar_at_every_width() {
                     position: Some(View::new(&position, 3, w, h).unwrap()),
                     depth: None,
                 };
-                let params = AtrousParams { sigma_plane: 0.03, ..AtrousParams::default() };
+                let params = AtrousParams { sigma_plane: 0.03, sigma_distance: 0.06, ..AtrousParams::default() };
                 let nout = 3 * groups + 2 * usize::from(var);
                 let run = |isa: Isa, fill: f32| {
                     let mut out = vec![f16::from_f32(fill); nout * w * h];

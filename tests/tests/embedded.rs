@@ -72,6 +72,7 @@ fn oracle_outputs(op: Op) -> Vec<f64> {
                 p.sigma_normal as f64,
                 p.sigma_plane as f64,
                 p.sigma_depth as f64,
+                p.sigma_distance as f64,
                 p.eps as f64,
                 &g,
                 &values(Tensor::AtrousRadiance),

@@ -58,6 +58,9 @@ pub(crate) fn step(
     } else {
         q16(1.0 / ((p.sigma_depth * hole as f32) * (p.sigma_depth * hole as f32)))
     };
+    // The plane geometry's distance term (0: off).
+    let inv_dist =
+        if geo_plane && p.sigma_distance > 0.0 { q16(1.0 / (p.sigma_distance * p.sigma_distance)) } else { 0 };
     // The colour guide is the first image.
     let guide = |y: usize, x: usize, c: usize| -> i128 { at(src, c, y, x) as i128 };
     for yo in 0..dst.height() {
@@ -101,6 +104,10 @@ pub(crate) fn step(
                             let pd: i128 = (0..3).map(|c| at(n, c, y, x) as i128 * d[c]).sum();
                             let qd: i128 = (0..3).map(|c| at(n, c, qy, qx) as i128 * d[c]).sum();
                             let (pd16, qd16) = (sh(pd, fnm + fx - 16), sh(qd, fnm + fx - 16));
+                            if inv_dist > 0 {
+                                let d16: [i128; 3] = core::array::from_fn(|c| sh(d[c], fx - 16));
+                                t8 += sh(sh(d16.iter().map(|v| v * v).sum::<i128>(), 16) * inv_dist, 24);
+                            }
                             sh(pd16 * pd16 + qd16 * qd16, 17)
                         } else {
                             let d16: [i128; 3] = core::array::from_fn(|c| sh(d[c], fx - 16));

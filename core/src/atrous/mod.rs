@@ -19,6 +19,7 @@
 //! - `t_geometry`: with normal and position, the mean of the two pixels'
 //!   squared tangent-plane distances,
 //!   `((n(p) . d)^2 + (n(q) . d)^2) / (2 sigma_plane^2)` with `d = x(q) - x(p)`;
+//!   plus, when `sigma_distance > 0`, `|d|^2 / sigma_distance^2`;
 //!   with position only, `|x(q) - x(p)|^2 / (sigma_plane 2^i)^2`; with depth
 //!   only, `(z(q) - z(p))^2 / (z(p) z(q)) / (sigma_depth 2^i)^2` (depths
 //!   clamped to 1e-20).
@@ -87,13 +88,26 @@ pub struct AtrousParams {
     pub sigma_plane: f32,
     /// Relative depth difference scale (depth-only guides).
     pub sigma_depth: f32,
+    /// With normal and position: a world-space distance scale, the same at
+    /// every level, adding `|x(q) - x(p)|^2 / sigma_distance^2` to the
+    /// plane term, so that the deep levels (taps 8 and 16 pixels apart)
+    /// weigh far points less even on one plane (Dammertz et al.'s position
+    /// term). 0 (the default) leaves it out.
+    pub sigma_distance: f32,
     /// Added to the colour denominator (noise-free inputs).
     pub eps: f32,
 }
 
 impl Default for AtrousParams {
     fn default() -> Self {
-        AtrousParams { phi_color: 64.0, sigma_normal: 0.3, sigma_plane: 0.01, sigma_depth: 0.05, eps: 1e-6 }
+        AtrousParams {
+            phi_color: 64.0,
+            sigma_normal: 0.3,
+            sigma_plane: 0.01,
+            sigma_depth: 0.05,
+            sigma_distance: 0.0,
+            eps: 1e-6,
+        }
     }
 }
 

@@ -147,8 +147,12 @@ pub struct Settings {
     pub threads: usize,
     /// Storage/arithmetic precision.
     pub precision: PrecisionKind,
-    /// À-trous colour edge-stopping multiple (`None`: the default, 64).
+    /// À-trous colour edge-stopping multiple (`None`: the default, 64 with
+    /// the second estimate, 2048 without).
     pub phi_color: Option<f32>,
+    /// À-trous: the firefly clamp's threshold in local standard deviations
+    /// (0: off; default [`atrous::FIREFLY_K`]).
+    pub firefly_clamp: f32,
     /// Learned methods: network layers (WSKP: 3 or 6).
     pub layers: usize,
     /// Learned methods: a weights file instead of the bundled weights.
@@ -170,6 +174,7 @@ impl Default for Settings {
             threads: 1,
             precision: PrecisionKind::F32,
             phi_color: None,
+            firefly_clamp: atrous::FIREFLY_K,
             layers: 6,
             weights: None,
             refine: true,
@@ -227,8 +232,8 @@ fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Fr
     Ok(match kind {
         MethodKind::None => Box::new(Passthrough::<P>::new(first)),
         MethodKind::Ta => Box::new(TemporalAccumulation::<P>::new(first, true)?),
-        MethodKind::Atrous => Box::new(Atrous::<P>::new(first, false, settings.phi_color)?),
-        MethodKind::SureAtrous => Box::new(Atrous::<P>::new(first, true, settings.phi_color)?),
+        MethodKind::Atrous => Box::new(Atrous::<P>::new(first, false, settings)?),
+        MethodKind::SureAtrous => Box::new(Atrous::<P>::new(first, true, settings)?),
         MethodKind::Wskp => {
             let file = crate::weights::wskp(settings.weights.as_deref(), settings.layers)?;
             Box::new(crate::wskp::Wskp::<P>::new(first, &file, settings.layers)?)
@@ -257,8 +262,8 @@ fn footprint_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, info: &
     match kind {
         MethodKind::None => Passthrough::<P>::footprint(info),
         MethodKind::Ta => TemporalAccumulation::<P>::footprint(info),
-        MethodKind::Atrous => Atrous::<P>::footprint(info, false, settings.threads),
-        MethodKind::SureAtrous => Atrous::<P>::footprint(info, true, settings.threads),
+        MethodKind::Atrous => Atrous::<P>::footprint(info, false, settings),
+        MethodKind::SureAtrous => Atrous::<P>::footprint(info, true, settings),
         MethodKind::Wskp => crate::wskp::Wskp::<P>::footprint(info, settings.layers, settings.threads),
         MethodKind::Afn => crate::afn::Afn::<P>::footprint(info, settings.threads),
         MethodKind::Cross => crate::cross::Cross::footprint(info),

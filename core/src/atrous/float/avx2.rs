@@ -633,16 +633,28 @@ unsafe fn geometry_weights<const GEO: u8, const N: usize>(
             0 => {
                 let mut pd = [zero; N];
                 let mut qd = [zero; N];
+                let mut dd = [zero; N];
                 for a in 0..3 {
                     let (xp, np) = (lp(p, 7 + a, ip), lp(p, 4 + a, ip));
                     for j in 0..N {
                         let d = _mm256_sub_ps(lp(q[j].0, 7 + a, q[j].1), xp);
                         pd[j] = _mm256_fmadd_ps(np, d, pd[j]);
                         qd[j] = _mm256_fmadd_ps(nq[a][j], d, qd[j]);
+                        dd[j] = _mm256_fmadd_ps(d, d, dd[j]);
                     }
                 }
                 for j in 0..N {
                     t[j] = _mm256_fmadd_ps(qd[j], qd[j], _mm256_fmadd_ps(pd[j], pd[j], t[j]));
+                }
+                // The distance term: positions are packed times sx (see
+                // `pack_row`), so |d'|^2 = |d|^2 sx^2. (Computed also when
+                // it is off: its FMAs hide under the loads.)
+                if c.inv_dist2 > 0.0 {
+                    let sn2 = c.inv_normal2;
+                    let k = _mm256_set1_ps(c.inv_dist2 * sn2 / (0.5 * c.inv_geom2));
+                    for j in 0..N {
+                        t[j] = _mm256_fmadd_ps(dd[j], k, t[j]);
+                    }
                 }
             }
             1 => {

@@ -36,6 +36,8 @@ pub(crate) struct Ctx<'c, 'a, S> {
     pub geometry: Geometry,
     /// `1 / sigma^2` of the geometry term at this level.
     pub inv_geom2: f32,
+    /// `1 / sigma_distance^2` of the plane geometry's distance term (0: off).
+    pub inv_dist2: f32,
     pub guides: &'c AtrousGuides<'a, S>,
     pub src: &'c View<'a, S>,
 }
@@ -66,6 +68,11 @@ impl<'c, 'a, S: FloatElement> Ctx<'c, 'a, S> {
             inv_normal2: if guides.normal.is_some() { 1.0 / (p.sigma_normal * p.sigma_normal) } else { 0.0 },
             geometry,
             inv_geom2,
+            inv_dist2: if geometry == Geometry::Plane && p.sigma_distance > 0.0 {
+                1.0 / (p.sigma_distance * p.sigma_distance)
+            } else {
+                0.0
+            },
             guides,
             src,
         }

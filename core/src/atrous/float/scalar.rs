@@ -70,6 +70,9 @@ pub(crate) fn pixel<S: FloatElement, A: Real>(c: &Ctx<'_, '_, S>, y: usize, x: u
                         let nq = v3::<S, A>(c.guides.normal.as_ref().expect("normal"), qy, qx);
                         let pd = np[0] * d[0] + np[1] * d[1] + np[2] * d[2];
                         let qd = nq[0] * d[0] + nq[1] * d[1] + nq[2] * d[2];
+                        if c.inv_dist2 > 0.0 {
+                            t += (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) * A::of(c.inv_dist2);
+                        }
                         (pd * pd + qd * qd) * A::of(0.5)
                     } else {
                         d[0] * d[0] + d[1] * d[1] + d[2] * d[2]

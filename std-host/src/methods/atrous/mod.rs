@@ -42,7 +42,7 @@ use crate::precision::{store_bytes, store_is, HostPrecision, Kind, Planes};
 mod plan;
 mod prepare;
 
-use prepare::{prepare, Bufs};
+use prepare::{demodulate, firefly_clamp, prepare, Bufs};
 
 /// Albedo epsilon of (de)modulation.
 pub const ALBEDO_EPS: f32 = 1e-3;
@@ -52,6 +52,24 @@ pub const LEVELS: u32 = 5;
 pub const NOISE_RADIUS: usize = 1;
 /// Tangent-plane tolerance as a fraction of the scene scale.
 pub const PLANE_TOLERANCE: f32 = 0.005;
+/// The distance term's scale (`AtrousParams::sigma_distance`) as a fraction
+/// of the scene scale: on the test corpus 0.03 beat 0.02 and 0.05 overall
+/// and gained 2 to 5 dB over no distance term (docs/quality.md).
+pub const DISTANCE_TOLERANCE: f32 = 0.017;
+/// Default `phi_color` with the second estimate `B.*`.
+pub const PHI_PAIR: f32 = 64.0;
+/// Default `phi_color` with one estimate. The local noise estimate is a
+/// median of squared deviations: for Monte Carlo noise, whose distribution
+/// has a long bright tail, it sits 2 to 5 times below the variance, and the
+/// corpus sweep (README) puts the best multiple near 2048.
+pub const PHI_SINGLE: f32 = 2048.0;
+/// The single estimate's noise floor is the frame's median 5x5 sample
+/// variance over this: 4 lifted the dim 1-spp corpus scene by 9 dB and
+/// moved the others by under 0.5 dB either way (docs/quality.md).
+pub const NOISE_FLOOR_DIV: f32 = 4.0;
+/// Default threshold of the firefly clamp, in local standard deviations
+/// (`--firefly-clamp`).
+pub const FIREFLY_K: f32 = 6.0;
 
 /// The à-trous methods.
 pub struct Atrous<P: HostPrecision> {
@@ -64,6 +82,8 @@ pub struct Atrous<P: HostPrecision> {
     use_position: bool,
     use_depth: bool,
     params: AtrousParams,
+    /// Firefly clamp threshold (0: off).
+    clamp: f32,
     bufs: Option<Bufs<P::Store>>,
     _p: PhantomData<P>,
 }
@@ -75,7 +95,8 @@ impl<P: HostPrecision> Atrous<P> {
     /// output, the fixed-point decode of the kept levels (`sure-atrous`) and
     /// the output's round trip through the storage type; with the band
     /// scratch of `threads` threads at the frame's width.
-    pub fn footprint(info: &FrameInfo, sure: bool, threads: usize) -> Footprint {
+    pub fn footprint(info: &FrameInfo, sure: bool, settings: &crate::methods::Settings) -> Footprint {
+        let threads = settings.threads;
         let (s, x) = (store_bytes::<P>(), P::FORMAT_COPY_BYTES);
         let (f32s, f16s) = (store_is::<P, f32>(), store_is::<P, half::f16>());
         let has = |b: Buffer| u64::from(info.has(b));
@@ -88,6 +109,8 @@ impl<P: HostPrecision> Atrous<P> {
         let levels = LEVELS as u64;
         // c0, noise_raw, noise, zeros, the level outputs, out.
         let kept = 4 * nsrc + 3 * 4 + if sure { levels * nout * s } else { 2 * nout * s } + 12;
+        // The firefly clamp's planes.
+        let kept = kept + 4 * clamp_planes(settings.firefly_clamp, pair) as u64;
         let guides = if f32s { 0 } else { s + 3 * s * normal + 3 * s * position + s * depth + nsrc * s };
         let mut l = Ledger::default();
         l.alloc(kept);
@@ -262,7 +285,7 @@ impl<P: HostPrecision> Denoiser for Atrous<P> {
         let nout = 3 * groups + 2 * usize::from(sure_single);
         let bufs = match self.bufs.take() {
             Some(bf) if bf.n == n && bf.ping.width == w && bf.ping.channels == nout => bf,
-            _ => Bufs::new(w, h, nsrc, nout, self.sure),
+            _ => Bufs::new(w, h, nsrc, nout, self.sure, clamp_planes(self.clamp, self.pair)),
         };
         let mut bf = bufs;
         let result = self.run(f, ctx, t, &mut bf, (a, b, albedo, normal, position, depth), (groups, nsrc, nout));
@@ -290,7 +313,26 @@ impl<P: HostPrecision> Atrous<P> {
         let n = w * h;
         let sure_pair = self.sure && self.pair;
         let sure_single = self.sure && !self.pair;
-        t.time("prepare", || prepare(ctx, n, a, b, albedo, sure_pair, &mut bf.c0, &mut bf.noise_raw));
+        // The firefly clamp works on the demodulated estimates, which
+        // prepare then reads instead of the frame's.
+        let (a, b, demod_by) = if self.clamp > 0.0 {
+            let k = self.clamp;
+            let (ca, rest) = bf.clamp.split_at_mut(3 * n);
+            let (cb, rest) = rest.split_at_mut(if b.is_some() { 3 * n } else { 0 });
+            let (lum, fac) = rest.split_at_mut(n);
+            t.time("firefly clamp", || {
+                demodulate(ctx, a, albedo, ca);
+                firefly_clamp(ctx, ca, albedo, lum, fac, w, h, k);
+                if let Some(b) = b {
+                    demodulate(ctx, b, albedo, cb);
+                    firefly_clamp(ctx, cb, albedo, lum, fac, w, h, k);
+                }
+            });
+            (&*ca, b.map(|_| &*cb), None)
+        } else {
+            (a, b, albedo)
+        };
+        t.time("prepare", || prepare(ctx, n, a, b, demod_by, sure_pair, &mut bf.c0, &mut bf.noise_raw));
         // Noise variance of the filtered input, per pixel.
         t.time("noise estimate", || -> Result<()> {
             if b.is_some() {
@@ -299,7 +341,16 @@ impl<P: HostPrecision> Atrous<P> {
                 local_noise(ctx, &bf.c0[..3 * n], w, h, &mut bf.noise_raw)?;
                 // A 3x3 median, not a box: where the local estimate mistook an
                 // edge for noise, those pixels are a minority of the window.
-                median3(ctx, &bf.noise_raw, w, h, &mut bf.noise)
+                median3(ctx, &bf.noise_raw, w, h, &mut bf.noise)?;
+                // The floor: where most samples are 0 (a dim region at 1 spp)
+                // the median-based estimate is 0 and would stop all smoothing.
+                let floor = noise_floor(ctx, &bf.c0[..3 * n], w, h, &mut bf.noise_raw);
+                ctx.pool.planes(vec![&mut bf.noise[..]], 1 << 14, |_, runs| {
+                    for v in runs[0].iter_mut() {
+                        *v = v.max(floor);
+                    }
+                });
+                Ok(())
             }
         })?;
         if sure_single {
@@ -427,4 +478,55 @@ fn local_noise(ctx: &mut Ctx, y: &[f32], w: usize, h: usize, v: &mut [f32]) -> R
 fn median3(ctx: &mut Ctx, v: &[f32], w: usize, h: usize, out: &mut [f32]) -> Result<()> {
     let src = View::new(v, 1, w, h)?;
     bands(ctx, ViewMut::new(out, 1, w, h)?, 1, 0, |band, y0, _| noise::median3_rows(&src, band, y0))
+}
+
+/// Planes the firefly clamp keeps (demodulated `A`, `B` with a pair, the
+/// luminance and the factor), 0 when it is off.
+fn clamp_planes(k: f32, pair: bool) -> usize {
+    if k > 0.0 {
+        3 + 3 * usize::from(pair) + 2
+    } else {
+        0
+    }
+}
+
+/// The single estimate's noise floor: the median over the frame of the 5x5
+/// sample variance of `y` (3 planes, mean over the channels), over
+/// [`NOISE_FLOOR_DIV`]. `tmp` (`w h` floats) is overwritten. The median of
+/// windowed variances is blind to edges (a minority of windows) but, unlike
+/// the median-based local estimate, sees sparse bright samples.
+fn noise_floor(ctx: &Ctx, y: &[f32], w: usize, h: usize, tmp: &mut [f32]) -> f32 {
+    let n = w * h;
+    ctx.pool.planes(vec![&mut *tmp], w * 16, |s, runs| {
+        for (j, o) in runs[0].iter_mut().enumerate() {
+            let i = s + j;
+            let (py, px) = (i / w, i % w);
+            let mut acc = 0.0f64;
+            for c in 0..3 {
+                let (mut cnt, mut s1, mut s2) = (0.0f64, 0.0f64, 0.0f64);
+                for yy in py.saturating_sub(2)..(py + 3).min(h) {
+                    for xx in px.saturating_sub(2)..(px + 3).min(w) {
+                        let v = y[c * n + yy * w + xx] as f64;
+                        cnt += 1.0;
+                        s1 += v;
+                        s2 += v * v;
+                    }
+                }
+                let m = s1 / cnt;
+                acc += (s2 / cnt - m * m).max(0.0);
+            }
+            *o = (acc / 3.0) as f32;
+        }
+    });
+    if n == 0 {
+        return 0.0;
+    }
+    let mid = n / 2;
+    let (_, m, _) = tmp.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
+    let m = *m;
+    if m.is_finite() {
+        m / NOISE_FLOOR_DIV
+    } else {
+        0.0
+    }
 }

@@ -6,15 +6,15 @@ use std::marker::PhantomData;
 
 use mcdenoise_core::atrous::AtrousParams;
 
-use super::{Atrous, PLANE_TOLERANCE};
+use super::{Atrous, DISTANCE_TOLERANCE, PHI_PAIR, PHI_SINGLE, PLANE_TOLERANCE};
 use crate::error::Result;
 use crate::frame::{Buffer, Frame};
-use crate::methods::{scene_scale, Plan};
+use crate::methods::{scene_scale, Plan, Settings};
 use crate::precision::HostPrecision;
 
 impl<P: HostPrecision> Atrous<P> {
     /// For a sequence starting with `first`; `sure` selects `sure-atrous`.
-    pub fn new(first: &Frame, sure: bool, phi_color: Option<f32>) -> Result<Self> {
+    pub fn new(first: &Frame, sure: bool, settings: &Settings) -> Result<Self> {
         let name = if sure { "sure-atrous" } else { "atrous" };
         let pair = first.has(Buffer::ColorB);
         let demod = first.has(Buffer::Albedo);
@@ -26,6 +26,12 @@ impl<P: HostPrecision> Atrous<P> {
             plan.built.push("demodulate");
         } else {
             plan.skipped.push(("demodulation", "no albedo".into()));
+        }
+        let clamp = settings.firefly_clamp;
+        if clamp > 0.0 {
+            plan.built.push("firefly clamp");
+        } else {
+            plan.skipped.push(("firefly clamp", "--firefly-clamp 0".into()));
         }
         plan.built.push(if pair { "noise from A-B" } else { "local noise estimate" });
         if pair {
@@ -46,10 +52,13 @@ impl<P: HostPrecision> Atrous<P> {
         if !use_position && !use_depth {
             plan.skipped.push(("geometry edge-stopping", "no position or depth".into()));
         }
-        let mut params = AtrousParams { sigma_plane: PLANE_TOLERANCE * scene_scale(first), ..AtrousParams::default() };
-        if let Some(phi) = phi_color {
-            params.phi_color = phi;
-        }
+        let scale = scene_scale(first);
+        let params = AtrousParams {
+            sigma_plane: PLANE_TOLERANCE * scale,
+            sigma_distance: DISTANCE_TOLERANCE * scale,
+            phi_color: settings.phi_color.unwrap_or(if pair { PHI_PAIR } else { PHI_SINGLE }),
+            ..AtrousParams::default()
+        };
         Ok(Atrous {
             name,
             plan,
@@ -60,6 +69,7 @@ impl<P: HostPrecision> Atrous<P> {
             use_position,
             use_depth,
             params,
+            clamp,
             bufs: None,
             _p: PhantomData,
         })

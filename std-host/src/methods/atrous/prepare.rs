@@ -28,10 +28,13 @@ pub(super) struct Bufs<T: bytemuck::Pod> {
     /// one pass after the levels).
     pub(super) levels: Vec<Planes<T>>,
     pub(super) out: Aligned<f32>,
+    /// The firefly clamp's demodulated, clamped estimates (`A`, and `B` with
+    /// a pair), then its luminance and factor planes; empty when it is off.
+    pub(super) clamp: Aligned<f32>,
 }
 
 impl<T: bytemuck::Pod + Default> Bufs<T> {
-    pub(super) fn new(w: usize, h: usize, nsrc: usize, nout: usize, sure: bool) -> Self {
+    pub(super) fn new(w: usize, h: usize, nsrc: usize, nout: usize, sure: bool, clamp_planes: usize) -> Self {
         let n = w * h;
         // `sure-atrous` keeps every level's output instead of two.
         let (rows, kept) = if sure { (0, LEVELS as usize) } else { (h, 0) };
@@ -45,6 +48,7 @@ impl<T: bytemuck::Pod + Default> Bufs<T> {
             pong: Planes::new(nout, w, rows),
             levels: (0..kept).map(|_| Planes::new(nout, w, h)).collect(),
             out: Aligned::zeroed(3 * n),
+            clamp: Aligned::zeroed(clamp_planes * n),
         }
     }
 }
@@ -127,6 +131,104 @@ pub(super) fn prepare(
                         None => im.copy_from_slice(ac),
                     }
                 }
+            }
+        }
+    });
+}
+
+/// Pixels farther below a 0.01 albedo than this are treated as emitters (or
+/// background) by the firefly clamp and left alone: their demodulated value
+/// is the radiance over the albedo epsilon, far above any neighbour, and a
+/// visible light is not a firefly.
+const EMITTER_ALBEDO: f32 = 0.01;
+
+/// The firefly clamp, in place on the 3 planes of `img` (`w x h`): a pixel
+/// whose luminance (mean of the channels) `L` exceeds `T = m + k s`, with
+/// `m` and `s` the mean and standard deviation of its 5x5 neighbours (the
+/// centre left out, the window clipped at the border), is scaled by `T / L`
+/// (its colour kept). Pixels whose albedo is below [`EMITTER_ALBEDO`] in
+/// every channel are left alone. `lum` and `fac` are `w h` floats of scratch.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn firefly_clamp(
+    ctx: &Ctx,
+    img: &mut [f32],
+    albedo: Option<&[f32]>,
+    lum: &mut [f32],
+    fac: &mut [f32],
+    w: usize,
+    h: usize,
+    k: f32,
+) {
+    let n = w * h;
+    {
+        let src = &*img;
+        ctx.pool.planes(vec![&mut *lum], RUN, |s, runs| {
+            for (j, l) in runs[0].iter_mut().enumerate() {
+                let i = s + j;
+                *l = (src[i] + src[n + i] + src[2 * n + i]) / 3.0;
+            }
+        });
+    }
+    {
+        let lum = &*lum;
+        // Whole rows per job, so a job's window sums start from its row.
+        ctx.pool.planes(vec![&mut *fac], w * 16, |s, runs| {
+            for (j, f) in runs[0].iter_mut().enumerate() {
+                let i = s + j;
+                let (y, x) = (i / w, i % w);
+                let li = lum[i];
+                *f = 1.0;
+                if !(li > 0.0) || albedo.is_some_and(|a| (0..3).all(|c| a[c * n + i] < EMITTER_ALBEDO)) {
+                    continue;
+                }
+                let (mut cnt, mut s1, mut s2) = (0.0f64, 0.0f64, 0.0f64);
+                for yy in y.saturating_sub(2)..(y + 3).min(h) {
+                    for xx in x.saturating_sub(2)..(x + 3).min(w) {
+                        if yy == y && xx == x {
+                            continue;
+                        }
+                        let v = lum[yy * w + xx] as f64;
+                        cnt += 1.0;
+                        s1 += v;
+                        s2 += v * v;
+                    }
+                }
+                if cnt == 0.0 {
+                    continue;
+                }
+                let m = s1 / cnt;
+                let sd = (s2 / cnt - m * m).max(0.0).sqrt();
+                let t = m + k as f64 * sd;
+                if (li as f64) > t {
+                    *f = (t.max(0.0) / li as f64) as f32;
+                }
+            }
+        });
+    }
+    let fac = &*fac;
+    ctx.pool.planes(img.chunks_mut(n).take(3).collect(), RUN, |s, runs| {
+        for r in runs.iter_mut() {
+            for (v, &f) in r.iter_mut().zip(&fac[s..]) {
+                *v *= f;
+            }
+        }
+    });
+}
+
+/// Demodulates `src` (3 planes) by `albedo + eps` into `dst` (a copy without albedo).
+pub(super) fn demodulate(ctx: &Ctx, src: &[f32], albedo: Option<&[f32]>, dst: &mut [f32]) {
+    ctx.pool.planes(dst.chunks_mut(src.len() / 3).take(3).collect(), RUN, |s, runs| {
+        let n = src.len() / 3;
+        for (c, r) in runs.iter_mut().enumerate() {
+            let len = r.len();
+            let a = &src[c * n + s..c * n + s + len];
+            match albedo {
+                Some(al) => {
+                    for ((o, &v), &q) in r.iter_mut().zip(a).zip(&al[c * n + s..c * n + s + len]) {
+                        *o = v / (q + ALBEDO_EPS);
+                    }
+                }
+                None => r.copy_from_slice(a),
             }
         }
     });
