@@ -11,14 +11,23 @@
 //!   detail of `M` is `D_M` and its noise variance `|D_H|^2` (which equals
 //!   `|D_A - D_B|^2 / 4`: the filter is linear).
 //!   That is an unbiased, per-pixel, per-level estimate of the detail noise
-//!   with no model of the filter's effective kernel.
+//!   with no model of the filter's effective kernel. `H` is stored times
+//!   `sqrt(SURE_SAFETY_PAIR)`, so SURE sees that noise times the factor
+//!   (see [`SURE_SAFETY_PAIR`]).
 //!
 //! Without `B.*` the input's noise variance is estimated locally,
 //! `0.84 |y - median of the 8 neighbours|^2` (about unbiased for white noise
 //! on a locally flat signal, and blind to a single edge), then a 3x3 median
-//! (scaled to the mean for white noise); `sure-atrous` then propagates it through the
-//! levels with the squared normalised weights (as SVGF does) and takes
+//! (scaled to the mean for white noise), floored at a quarter of the frame's
+//! median 5x5 sample variance ([`NOISE_FLOOR_DIV`]); `sure-atrous` then
+//! propagates it (times [`SURE_SAFETY_SINGLE`]) through the levels with the
+//! squared normalised weights (as SVGF does) and takes
 //! `Var(D_i) = Var(c_i) (1 - 2 w_centre) + Var(c_{i+1})` per channel.
+//!
+//! Before all that, unless `--firefly-clamp 0`, each estimate is demodulated
+//! and its fireflies clamped ([`FIREFLY_K`], `prepare::firefly_clamp`). The
+//! colour gate's multiple defaults to [`PHI_PAIR`] or [`PHI_SINGLE`], and the
+//! geometry adds a world-space distance term ([`DISTANCE_TOLERANCE`]).
 //!
 //! The SURE of linear shrinkage is summed over a 5x5 window and the three
 //! channels; [`mcdenoise_core::atrous::sure_shrink_levels`] picks per pixel
@@ -67,6 +76,17 @@ pub const PHI_SINGLE: f32 = 2048.0;
 /// variance over this: 4 lifted the dim 1-spp corpus scene by 9 dB and
 /// moved the others by under 0.5 dB either way (docs/quality.md).
 pub const NOISE_FLOOR_DIV: f32 = 4.0;
+/// SURE's noise term with the second estimate is multiplied by this. The
+/// risk is estimated over a 5x5 window of heavy-tailed Monte Carlo noise, so
+/// it is itself noisy, and taking the candidate of least estimated risk
+/// favours the ones whose noise was underestimated: it keeps noise. A
+/// safety factor moves the choice towards `beta = 0` (plain à-trous); on the
+/// corpus 1 lost up to 1.4 dB to `atrous`, 4 up to 0.05 dB, 16 none
+/// (docs/quality.md).
+pub const SURE_SAFETY_PAIR: f32 = 16.0;
+/// The same for one estimate, whose propagated variance comes from the
+/// local estimate (2 to 5 times below the variance, see [`PHI_SINGLE`]).
+pub const SURE_SAFETY_SINGLE: f32 = 64.0;
 /// Default threshold of the firefly clamp, in local standard deviations
 /// (`--firefly-clamp`).
 pub const FIREFLY_K: f32 = 6.0;
@@ -315,7 +335,7 @@ impl<P: HostPrecision> Atrous<P> {
         let sure_single = self.sure && !self.pair;
         // The firefly clamp works on the demodulated estimates, which
         // prepare then reads instead of the frame's.
-        let (a, b, demod_by) = if self.clamp > 0.0 {
+        let (pa, pb, demod_by) = if self.clamp > 0.0 {
             let k = self.clamp;
             let (ca, rest) = bf.clamp.split_at_mut(3 * n);
             let (cb, rest) = rest.split_at_mut(if b.is_some() { 3 * n } else { 0 });
@@ -332,29 +352,34 @@ impl<P: HostPrecision> Atrous<P> {
         } else {
             (a, b, albedo)
         };
-        t.time("prepare", || prepare(ctx, n, a, b, demod_by, sure_pair, &mut bf.c0, &mut bf.noise_raw));
+        t.time("prepare", || prepare(ctx, n, pa, pb, demod_by, sure_pair, &mut bf.c0, &mut bf.noise_raw));
         // Noise variance of the filtered input, per pixel.
         t.time("noise estimate", || -> Result<()> {
             if b.is_some() {
-                box_average(ctx, &bf.noise_raw, &bf.zeros, 1, w, h, NOISE_RADIUS, &mut bf.noise)
+                box_average(ctx, &bf.noise_raw, &bf.zeros, 1, w, h, NOISE_RADIUS, &mut bf.noise)?;
             } else {
                 local_noise(ctx, &bf.c0[..3 * n], w, h, &mut bf.noise_raw)?;
                 // A 3x3 median, not a box: where the local estimate mistook an
                 // edge for noise, those pixels are a minority of the window.
                 median3(ctx, &bf.noise_raw, w, h, &mut bf.noise)?;
-                // The floor: where most samples are 0 (a dim region at 1 spp)
-                // the median-based estimate is 0 and would stop all smoothing.
-                let floor = noise_floor(ctx, &bf.c0[..3 * n], w, h, &mut bf.noise_raw);
-                ctx.pool.planes(vec![&mut bf.noise[..]], 1 << 14, |_, runs| {
-                    for v in runs[0].iter_mut() {
-                        *v = v.max(floor);
-                    }
-                });
-                Ok(())
             }
+            // The floor: where most samples are 0 (a dim region at 1 spp)
+            // the median-based estimate is 0 and would stop all smoothing;
+            // with a pair, a variance of 0 (or below fixed point's
+            // resolution) would do the same.
+            let floor = noise_floor(ctx, &bf.c0[..3 * n], w, h, &mut bf.noise_raw);
+            ctx.pool.planes(vec![&mut bf.noise[..]], 1 << 14, |_, runs| {
+                for v in runs[0].iter_mut() {
+                    *v = v.max(floor);
+                }
+            });
+            Ok(())
         })?;
         if sure_single {
             bf.c0[3 * n..4 * n].copy_from_slice(&bf.noise);
+            for v in &mut bf.c0[3 * n..4 * n] {
+                *v *= SURE_SAFETY_SINGLE;
+            }
         }
         // The guides and the level-0 images in the storage precision (the
         // frame's own f32 data when that is the precision).
@@ -456,7 +481,19 @@ impl<P: HostPrecision> Atrous<P> {
                         ALBEDO_EPS,
                         band,
                     )
-                })
+                })?;
+                // Emitters were demodulated by 1 and are passed through: the
+                // input (the mean of the pair) is their output.
+                for i in (0..n).filter(|&i| prepare::is_emitter(al, n, i)) {
+                    for c in 0..3 {
+                        let k = c * n + i;
+                        out[k] = match b {
+                            Some(b) => 0.5 * (a[k] + b[k]),
+                            None => a[k],
+                        };
+                    }
+                }
+                Ok(())
             })?;
         }
         // The output passes through the pipeline's storage precision.

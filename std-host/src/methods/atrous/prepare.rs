@@ -2,7 +2,12 @@
 //! demodulation and, with a second estimate, the mean, half-difference and
 //! raw noise of the pair.
 
-use super::{ALBEDO_EPS, LEVELS};
+use super::{ALBEDO_EPS, LEVELS, SURE_SAFETY_PAIR};
+
+/// `H = (A - B) / 2` times the square root of the pair's SURE safety factor
+/// (so its detail energy, SURE's noise term, comes out times the factor).
+const SURE_H_SCALE: f32 = 0.5 * 4.0;
+const _: () = assert!(SURE_SAFETY_PAIR == 16.0); // SURE_H_SCALE = 0.5 sqrt(16)
 use crate::aligned::Aligned;
 use crate::methods::Ctx;
 use crate::precision::Planes;
@@ -95,16 +100,15 @@ pub(super) fn prepare(
                     let mut one = |i: usize, ai: f32, bi: f32| {
                         m[i] = 0.5 * (ai + bi);
                         if let Some(h) = h.as_deref_mut() {
-                            h[i] = 0.5 * (ai - bi);
+                            h[i] = SURE_H_SCALE * (ai - bi);
                         }
                         let d = ai - bi;
                         nz[i] += d * d;
                     };
                     match albedo {
                         Some(al) => {
-                            let alc = seg(al, c, n, s, len);
                             for i in 0..len {
-                                let q = alc[i] + ALBEDO_EPS;
+                                let q = demod_factor(al, n, c, s + i);
                                 one(i, ac[i] / q, bc[i] / q);
                             }
                         }
@@ -124,8 +128,8 @@ pub(super) fn prepare(
                     let ac = seg(a, c, n, s, len);
                     match albedo {
                         Some(al) => {
-                            for ((o, &v), &q) in im.iter_mut().zip(ac).zip(seg(al, c, n, s, len)) {
-                                *o = v / (q + ALBEDO_EPS);
+                            for (i, (o, &v)) in im.iter_mut().zip(ac).enumerate() {
+                                *o = v / demod_factor(al, n, c, s + i);
                             }
                         }
                         None => im.copy_from_slice(ac),
@@ -136,11 +140,29 @@ pub(super) fn prepare(
     });
 }
 
-/// Pixels farther below a 0.01 albedo than this are treated as emitters (or
-/// background) by the firefly clamp and left alone: their demodulated value
-/// is the radiance over the albedo epsilon, far above any neighbour, and a
-/// visible light is not a firefly.
-const EMITTER_ALBEDO: f32 = 0.01;
+/// Pixels whose albedo is below this (the albedo epsilon) in every channel
+/// are emitters seen
+/// directly (or black): they are demodulated by 1 instead of `albedo +
+/// eps` (their radiance over the epsilon would be up to 1000 times any
+/// neighbour's, setting the fixed-point format and opening colour gates),
+/// left alone by the firefly clamp, and passed through to the output.
+pub(super) const EMITTER_ALBEDO: f32 = 1e-3;
+
+/// Whether pixel `i` of the 3-plane albedo `al` (`n` pixels a plane) is an emitter.
+#[inline]
+pub(super) fn is_emitter(al: &[f32], n: usize, i: usize) -> bool {
+    al[i] < EMITTER_ALBEDO && al[n + i] < EMITTER_ALBEDO && al[2 * n + i] < EMITTER_ALBEDO
+}
+
+/// What channel `c` of pixel `i` is demodulated by: `albedo + eps`, or 1 for an emitter.
+#[inline]
+pub(super) fn demod_factor(al: &[f32], n: usize, c: usize, i: usize) -> f32 {
+    if is_emitter(al, n, i) {
+        1.0
+    } else {
+        al[c * n + i] + ALBEDO_EPS
+    }
+}
 
 /// The firefly clamp, in place on the 3 planes of `img` (`w x h`): a pixel
 /// whose luminance (mean of the channels) `L` exceeds `T = m + k s`, with
@@ -178,7 +200,7 @@ pub(super) fn firefly_clamp(
                 let (y, x) = (i / w, i % w);
                 let li = lum[i];
                 *f = 1.0;
-                if !(li > 0.0) || albedo.is_some_and(|a| (0..3).all(|c| a[c * n + i] < EMITTER_ALBEDO)) {
+                if li.is_nan() || li <= 0.0 || albedo.is_some_and(|a| is_emitter(a, n, i)) {
                     continue;
                 }
                 let (mut cnt, mut s1, mut s2) = (0.0f64, 0.0f64, 0.0f64);
@@ -224,8 +246,8 @@ pub(super) fn demodulate(ctx: &Ctx, src: &[f32], albedo: Option<&[f32]>, dst: &m
             let a = &src[c * n + s..c * n + s + len];
             match albedo {
                 Some(al) => {
-                    for ((o, &v), &q) in r.iter_mut().zip(a).zip(&al[c * n + s..c * n + s + len]) {
-                        *o = v / (q + ALBEDO_EPS);
+                    for (i, (o, &v)) in r.iter_mut().zip(a).enumerate() {
+                        *o = v / demod_factor(al, n, c, s + i);
                     }
                 }
                 None => r.copy_from_slice(a),
