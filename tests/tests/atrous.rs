@@ -46,7 +46,7 @@ fn run_step(
     let position = Img::random(3, w, h, -0.05, 0.05, seed ^ 3);
     let depth = Img::random(1, w, h, 0.5, 2.0, seed ^ 4);
     // Half the cases with the plane geometry's distance term.
-    let sigma_distance = if seed % 2 == 0 { 0.06 } else { 0.0 };
+    let sigma_distance = if seed.is_multiple_of(2) { 0.06 } else { 0.0 };
     let params = AtrousParams { sigma_plane: 0.03, sigma_distance, ..AtrousParams::default() };
     let (nv, pv, dv) = match geo {
         Geo::Plane => (Some(normal.view()), Some(position.view()), None),
