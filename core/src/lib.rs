@@ -57,6 +57,7 @@
 //! }
 //! ```
 #![no_std]
+#![warn(missing_docs)]
 #![deny(unsafe_op_in_unsafe_fn)]
 // NaN handling is deliberate throughout: `!(x >= lo)` and `x.max(lo).min(hi)`
 // send NaN to a chosen value where `f32::clamp` would propagate it.

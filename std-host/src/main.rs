@@ -1,5 +1,7 @@
 //! The `mcdenoise` command.
 
+#![warn(missing_docs)]
+
 use std::process::ExitCode;
 
 use mcdenoise::cli::{self, Command};

@@ -477,6 +477,11 @@ pub fn demo(settings: &Settings) -> Result<()> {
         settings.isa.name()
     );
     println!("{:<14} {:>10} {:>10} {:>10} {:>8}", "method", "ms/frame", "PSNR dB", "relMSE", "SSIM");
+    // The contact sheet shows the last frame, where the temporal methods have
+    // the most history: the input, every method's output, the reference.
+    let last = files.len() - 1;
+    let (w, h) = (first.info().width, first.info().height);
+    let mut sheet: Vec<(String, Vec<f32>)> = Vec::new();
     // WSKP runs twice, with each bundled ImportanceNet.
     let runs = MethodKind::ALL.into_iter().flat_map(|m| match m {
         MethodKind::Wskp => vec![(m, 3, "wskp-3"), (m, 6, "wskp-6")],
@@ -488,7 +493,11 @@ pub fn demo(settings: &Settings) -> Result<()> {
         let mut scores = Vec::new();
         let mut err = None;
         let opts = SequenceOptions { png: true, ..SequenceOptions::default() };
+        let mut shown = None;
         let rep = denoise_sequence(m, settings, std::slice::from_ref(&dir), &outdir, &opts, |i, out, f| {
+            if i == last {
+                shown = Some(out.to_vec());
+            }
             let r = dir.join("ref").join(files[i].file_name().expect("file"));
             match load_color(&r) {
                 Ok(rf) if (rf.width, rf.height) == (f.width, f.height) => scores.push(metrics::score(
@@ -511,6 +520,9 @@ pub fn demo(settings: &Settings) -> Result<()> {
         if let Some(e) = err {
             return Err(e);
         }
+        if let Some(out) = shown {
+            sheet.push((if m == MethodKind::None { "input".into() } else { name.to_string() }, out));
+        }
         let s = mean_scores(&scores);
         println!(
             "{:<14} {:>10.3} {:>10.3} {:>10.5} {:>8.4}",
@@ -522,5 +534,12 @@ pub fn demo(settings: &Settings) -> Result<()> {
         );
     }
     println!("outputs and PNG previews: {}/<method>/", out_root.display());
+    let reference = load_color(&dir.join("ref").join(files[last].file_name().expect("file")))?;
+    sheet.push(("reference".into(), reference.get(crate::frame::Buffer::Color).expect("colour").to_vec()));
+    let tiles: Vec<(&str, &[f32])> = sheet.iter().map(|(n, v)| (n.as_str(), v.as_slice())).collect();
+    let (rgb, sw, sh) = crate::sheet::contact_sheet(&tiles, w, h, 3, 2);
+    let path = out_root.join("contact-sheet.png");
+    output::write_png_preview(&path, sw, sh, &rgb)?;
+    println!("contact sheet of frame {last} (input, each method, reference): {}", path.display());
     Ok(())
 }
