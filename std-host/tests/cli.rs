@@ -413,6 +413,13 @@ fn denoise_summary_json_and_quiet() {
     assert!(out.status.success() && out.stdout.is_empty() && out.stderr.is_empty(), "{out:?}");
 }
 
+/// clap's own consistency checks of the definition (they run only in debug
+/// builds otherwise, where the fuzz target would trip over them).
+#[test]
+fn the_definition_is_consistent() {
+    mcdenoise::cli::definition().debug_assert();
+}
+
 /// The parser is a pure function: no command runs, defaults are filled in.
 #[test]
 fn parse_is_a_function_of_the_arguments() {
