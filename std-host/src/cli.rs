@@ -208,7 +208,7 @@ enum TrainMethod {
 
 const AFTER_HELP: &str = "\
 Without a command: the main job, every method on the bundled sample (./samples) with a table of time
-and quality, outputs and PNGs under ./mcdenoise-out/.
+and quality, outputs, PNGs and a contact sheet (mcdenoise-out/contact-sheet.png) under ./mcdenoise-out/.
 
 Examples:
   mcdenoise denoise --method wskp --png renders/ -o denoised/
@@ -226,7 +226,8 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Sub {
-    /// Every method on the bundled sample: a table, outputs and PNGs under ./mcdenoise-out/ (the default)
+    /// Every method on the bundled sample: a table, outputs, PNGs and a contact sheet under ./mcdenoise-out/
+    /// (the default)
     Demo(DemoCli),
     /// Denoise a sequence of EXR frames (in order) into a directory
     #[command(
