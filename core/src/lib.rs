@@ -13,7 +13,13 @@
 //! - Nothing allocates. An operator that needs scratch says how much through a
 //!   `*_scratch_len` function and takes it as `&mut [f32]`.
 //! - Nothing panics on caller input: shapes are checked once and an
-//!   [`Error`] comes back.
+//!   [`Error`] comes back. Each operator's documentation gives the shapes it
+//!   takes, its scratch (the `*_scratch_len` function to size it) and, under
+//!   "Errors", what it refuses; an instruction set the CPU lacks is always
+//!   [`Error::IsaUnsupported`].
+//! - `examples/fixed_buffers.rs` calls the core as a `no_std` caller would:
+//!   fixed-size buffers, scratch sized from `*_scratch_len`, an explicit
+//!   [`Isa`], no allocation.
 //! - Output rows can be computed in bands (`*_rows` functions take the first
 //!   output row), so the host can split an output with
 //!   [`ViewMut::split_rows_at`] and run bands on different threads; the result
@@ -57,6 +63,7 @@
 //! }
 //! ```
 #![no_std]
+#![warn(missing_docs)]
 #![deny(unsafe_op_in_unsafe_fn)]
 // NaN handling is deliberate throughout: `!(x >= lo)` and `x.max(lo).min(hi)`
 // send NaN to a chosen value where `f32::clamp` would propagate it.

@@ -49,7 +49,7 @@ use crate::precision::{HostPrecision, Kind, Planes};
 pub const EPS: f32 = 0.01;
 
 /// Which images the network filters (the paper's Table 11 ablation).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Variant {
     /// Both, fused by the scale compositor: AFN.
     Fusion,
@@ -57,6 +57,7 @@ pub enum Variant {
     TaOnly,
     /// The 1-spp image only (full scale, the full-scale kernels; the network
     /// sees the 1-spp image twice).
+    #[value(name = "1spp-only")]
     OneSppOnly,
 }
 

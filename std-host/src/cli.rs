@@ -1,62 +1,25 @@
 //! Command-line parsing: a pure function from arguments to a [`Command`], so
 //! every bad argument gets a one-line message naming it (and the parser can be
 //! fuzzed without touching files).
+//!
+//! The grammar is one `clap` definition ([`definition`]): `--help` of every
+//! command, the shell completions and the man page all come from it. Its
+//! errors are turned into one line naming the command, the flag and what it
+//! expects, with clap's suggestion of the closest option or value when it has
+//! one, and come back as [`HostError::Usage`] (exit 2 in the binary).
 
 use std::ffi::OsString;
 use std::path::PathBuf;
 
+use clap::error::{ContextKind, ContextValue, ErrorKind};
+use clap::{Args, CommandFactory, FromArgMatches, Parser, Subcommand, ValueEnum};
 use mcdenoise_core::Isa;
 
+use crate::afn::Variant;
 use crate::error::{HostError, Result};
 use crate::methods::{MethodKind, Settings};
+use crate::nn::loss::Loss;
 use crate::precision::PrecisionKind;
-
-/// Usage text.
-pub const USAGE: &str = "\
-mcdenoise: real-time Monte Carlo denoisers
-
-usage:
-  mcdenoise                      run every method on the bundled sample, print a table,
-                                 write outputs and PNGs under ./mcdenoise-out/
-  mcdenoise denoise --method M [options] INPUT... -o OUTDIR
-                                 INPUT: frame files in order, or a directory (its .exr files by name)
-      --method M                 none | ta | atrous | sure-atrous | wskp | afn | cross
-      --no-refine                afn: without the refinement network
-      --precision P              f32 (default) | f16 | f16-arith | fixed
-      --threads N                worker threads (default: all cores)
-      --isa I                    scalar | avx2 | avx512 (default: the best this CPU has)
-      --phi-color F              a-trous colour edge-stopping, in noise variances
-                                 (default 64 with B.*, 2048 with one estimate)
-      --firefly-clamp K          a-trous: clamp pixels brighter than their 5x5 neighbours' mean
-                                 + K standard deviations before filtering (default 6; 0: off)
-      --layers N                 wskp: 3 or 6 ImportanceNet layers (default 6)
-      --weights FILE             learned methods: weights made by 'mcdenoise train' (default: bundled)
-      --seed N                   cross: seed of the initial random weights (default 2024)
-      --save-state FILE          cross: write the online network's weights and Adam state after each frame
-      --load-state FILE          cross: continue from a saved state instead of random weights
-      --half                     write f16 EXR (default f32)
-      --png                      also write a tone-mapped PNG preview per frame
-      --timings                  print per-stage times and the memory taken (estimate, peak heap, peak resident)
-      --max-memory SIZE          refuse a frame whose estimated peak memory is over SIZE (e.g. 512M, 4G),
-                                 from its header, before allocating (default: the memory available now)
-  mcdenoise precision [--frame FILE] [--size WxH] [--threads N] [--only OP,...] [--csv F] [--svg F]
-                                 time and error (against the f64 oracle) of every operator in every
-                                 precision and instruction set; CSV and an SVG plot (default under
-                                 ./mcdenoise-out/); 1 thread and 1280x720 unless told otherwise
-  mcdenoise train --method wskp|afn --data DIR (--steps N | --minutes M) -o WEIGHTS [options]
-      --val DIR                  validation sequences (mean PSNR printed every --val-every steps)
-      --layers N                 3 or 6 (default 6)        --batch N      crops per step (default 8)
-      --crop N                   crop side (default 128)   --lr F         Adam learning rate (default 1e-3)
-      --loss L                   smape | relmse | l1 (default smape)  --clip F  gradient norm clip (default off)
-      --seed N                   initialisation and sampling seed (default 1)
-      --threads N, --isa I       as for denoise            --resume CKPT  continue from WEIGHTS.ckpt
-      --checkpoint-minutes F     (default 5)               --val-every N  (default 500)
-      --log CSV                  step, seconds, loss and validation PSNR per step
-      --variant V                afn: fusion (default) | ta-only | 1spp-only (the ablation)
-  mcdenoise score --reference REF OUT [--json]
-                                 REF and OUT: two files, or two directories (matched by name)
-  mcdenoise help | --help | --version
-";
 
 /// What to do.
 #[derive(Clone, Debug, PartialEq)]
@@ -81,10 +44,17 @@ pub enum Command {
     Precision(crate::report::ReportArgs),
     /// Train a learned method.
     Train(crate::train::TrainArgs),
-    /// Print usage.
-    Help,
-    /// Print the version.
-    Version,
+    /// Print a shell completion script.
+    Completions(clap_complete::Shell),
+    /// Print the man page, or write one page per command into a directory.
+    Man {
+        /// Where to write `mcdenoise.1` and `mcdenoise-COMMAND.1` (stdout: the main page).
+        dir: Option<PathBuf>,
+    },
+    /// Print this help text (the requested command's).
+    Help(String),
+    /// Print this version line.
+    Version(String),
 }
 
 /// Arguments of `denoise`.
@@ -106,23 +76,10 @@ pub struct DenoiseArgs {
     pub timings: bool,
     /// `--max-memory`, in bytes.
     pub max_memory: Option<u64>,
-}
-
-fn usage(msg: impl Into<String>) -> HostError {
-    HostError::Usage(msg.into())
-}
-
-fn text(flag: &str, v: Option<OsString>) -> Result<String> {
-    let v = v.ok_or_else(|| usage(format!("{flag}: expects a value")))?;
-    v.into_string().map_err(|_| usage(format!("{flag}: value is not valid UTF-8")))
-}
-
-/// Parses a whole number in `lo..=hi` for `flag`.
-pub fn number(flag: &str, s: &str, lo: usize, hi: usize) -> Result<usize> {
-    match s.trim().parse::<usize>() {
-        Ok(v) if (lo..=hi).contains(&v) => Ok(v),
-        _ => Err(usage(format!("{flag}: expected a whole number from {lo} to {hi}, got '{s}'"))),
-    }
+    /// Print nothing but warnings and errors.
+    pub quiet: bool,
+    /// Print one JSON object instead of the text summary.
+    pub json: bool,
 }
 
 /// Default worker threads: every core.
@@ -130,230 +87,611 @@ pub fn default_threads() -> usize {
     std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
 }
 
-fn parse_settings(flag: &str, value: &str, s: &mut Settings) -> Result<bool> {
-    match flag {
-        "--precision" => s.precision = PrecisionKind::parse(value)?,
-        "--threads" => s.threads = number("--threads", value, 1, 256)?,
-        "--phi-color" => {
-            s.phi_color =
-                Some(value.trim().parse::<f32>().ok().filter(|v| v.is_finite() && *v > 0.0 && *v <= 1e6).ok_or_else(
-                    || usage(format!("--phi-color: expected a positive number up to 1e6, got '{value}'")),
-                )?)
-        }
-        "--firefly-clamp" => {
-            s.firefly_clamp =
-                value.trim().parse::<f32>().ok().filter(|v| v.is_finite() && *v >= 0.0 && *v <= 1e6).ok_or_else(
-                    || usage(format!("--firefly-clamp: expected a number from 0 (off) up to 1e6, got '{value}'")),
-                )?
-        }
-        "--isa" => {
-            s.isa = Isa::from_name(value)
-                .ok_or_else(|| usage(format!("--isa: expected scalar, avx2 or avx512; got '{value}'")))?
-        }
-        "--layers" => {
-            s.layers = match value.trim() {
-                "3" => 3,
-                "6" => 6,
-                _ => return Err(usage(format!("--layers: expected 3 or 6, got '{value}'"))),
-            }
-        }
-        "--weights" => s.weights = Some(PathBuf::from(value)),
-        "--seed" => {
-            s.seed = value
-                .trim()
-                .parse::<u64>()
-                .map_err(|_| usage(format!("--seed: expected a whole number, got '{value}'")))?
-        }
-        "--save-state" => s.save_state = Some(PathBuf::from(value)),
-        "--load-state" => s.load_state = Some(PathBuf::from(value)),
-        _ => return Ok(false),
-    }
-    Ok(true)
+/// Parses a whole number in `lo..=hi` for `flag`.
+pub fn number(flag: &str, s: &str, lo: usize, hi: usize) -> Result<usize> {
+    whole(s, lo as u64, hi as u64).map(|v| v as usize).map_err(|e| HostError::Usage(format!("{flag}: {e}")))
 }
+
+// ---------------------------------------------------------------------------
+// Value parsers. Each error says what is expected and repeats the value; the
+// flag is added by `one_line` from clap's context.
+
+fn whole(s: &str, lo: u64, hi: u64) -> std::result::Result<u64, String> {
+    match s.trim().parse::<u64>() {
+        Ok(v) if (lo..=hi).contains(&v) => Ok(v),
+        _ => Err(format!("expected a whole number from {lo} to {hi}, got '{s}'")),
+    }
+}
+
+fn real(s: &str, lo: f64, hi: f64) -> std::result::Result<f64, String> {
+    s.trim()
+        .parse::<f64>()
+        .ok()
+        .filter(|x| x.is_finite() && (lo..=hi).contains(x))
+        .ok_or_else(|| format!("expected a number from {lo} to {hi}, got '{s}'"))
+}
+
+fn threads(s: &str) -> std::result::Result<usize, String> {
+    whole(s, 1, 256).map(|v| v as usize)
+}
+
+fn phi_color(s: &str) -> std::result::Result<f32, String> {
+    s.trim()
+        .parse::<f32>()
+        .ok()
+        .filter(|v| v.is_finite() && *v > 0.0 && *v <= 1e6)
+        .ok_or_else(|| format!("expected a positive number up to 1e6, got '{s}'"))
+}
+
+fn firefly(s: &str) -> std::result::Result<f32, String> {
+    s.trim()
+        .parse::<f32>()
+        .ok()
+        .filter(|v| v.is_finite() && *v >= 0.0 && *v <= 1e6)
+        .ok_or_else(|| format!("expected a number from 0 (off) up to 1e6, got '{s}'"))
+}
+
+fn layers(s: &str) -> std::result::Result<usize, String> {
+    match s.trim() {
+        "3" => Ok(3),
+        "6" => Ok(6),
+        _ => Err(format!("expected 3 or 6, got '{s}'")),
+    }
+}
+
+fn seed(s: &str) -> std::result::Result<u64, String> {
+    s.trim().parse::<u64>().map_err(|_| format!("expected a whole number, got '{s}'"))
+}
+
+fn size(s: &str) -> std::result::Result<u64, String> {
+    crate::memory::parse_size(s)
+}
+
+fn frame_size(s: &str) -> std::result::Result<(usize, usize), String> {
+    let (w, h) = s.split_once('x').ok_or_else(|| format!("expected WxH, got '{s}'"))?;
+    let side = |v: &str, what: &str| whole(v, 1, 8192).map(|v| v as usize).map_err(|e| format!("{what}: {e}"));
+    Ok((side(w, "width")?, side(h, "height")?))
+}
+
+fn steps(s: &str) -> std::result::Result<u64, String> {
+    whole(s, 1, 1 << 40)
+}
+
+fn every(s: &str) -> std::result::Result<u64, String> {
+    whole(s, 0, 1 << 40)
+}
+
+fn batch(s: &str) -> std::result::Result<usize, String> {
+    whole(s, 1, 256).map(|v| v as usize)
+}
+
+fn crop(s: &str) -> std::result::Result<usize, String> {
+    whole(s, 8, 4096).map(|v| v as usize)
+}
+
+fn minutes(s: &str) -> std::result::Result<f64, String> {
+    real(s, 0.0, 1e6)
+}
+
+fn learning_rate(s: &str) -> std::result::Result<f32, String> {
+    real(s, 0.0, 1.0).map(|v| v as f32)
+}
+
+fn clip(s: &str) -> std::result::Result<f32, String> {
+    real(s, 0.0, 1e9).map(|v| v as f32)
+}
+
+// ---------------------------------------------------------------------------
+// The definition.
+
+/// Instruction set, by command-line name (the core's [`Isa`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum IsaArg {
+    /// Portable Rust on every target.
+    Scalar,
+    /// x86_64 AVX2 with FMA and F16C.
+    Avx2,
+    /// x86_64 AVX-512 (F, BW, DQ, VL); operators without a 16-lane kernel run their AVX2 one.
+    Avx512,
+}
+
+impl IsaArg {
+    fn isa(self) -> Isa {
+        match self {
+            IsaArg::Scalar => Isa::Scalar,
+            IsaArg::Avx2 => Isa::Avx2,
+            IsaArg::Avx512 => Isa::Avx512,
+        }
+    }
+}
+
+/// The learned methods `train` makes weights for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum TrainMethod {
+    /// Weight-sharing kernel prediction (Fan et al. 2021).
+    Wskp,
+    /// The adaptive fusion network (Lee et al. 2024).
+    Afn,
+}
+
+const AFTER_HELP: &str = "\
+Without a command: the main job, every method on the bundled sample (./samples) with a table of time
+and quality, outputs, PNGs and a contact sheet (mcdenoise-out/contact-sheet.png) under ./mcdenoise-out/.
+
+Examples:
+  mcdenoise denoise --method wskp --png renders/ -o denoised/
+  mcdenoise denoise --method sure-atrous --precision fixed --json frame_0001.exr -o out/
+  mcdenoise score --reference renders/ref denoised
+  mcdenoise completions bash > /etc/bash_completion.d/mcdenoise";
+
+/// Real-time Monte Carlo denoisers for 1-sample-per-pixel path-traced frames.
+#[derive(Debug, Parser)]
+#[command(name = "mcdenoise", version, propagate_version = true, after_help = AFTER_HELP)]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Sub>,
+}
+
+#[derive(Debug, Subcommand)]
+enum Sub {
+    /// Every method on the bundled sample: a table, outputs, PNGs and a contact sheet under ./mcdenoise-out/
+    /// (the default)
+    Demo(DemoCli),
+    /// Denoise a sequence of EXR frames (in order) into a directory
+    #[command(
+        after_help = "INPUT contract: one multichannel OpenEXR file per frame with R,G,B (noisy radiance) and, \
+                            when the renderer has them, albedo.R/G/B, normal.X/Y/Z, depth.Z, position.X/Y/Z, \
+                            motion.X/Y and B.R,B.G,B.B (a second estimate); see the README."
+    )]
+    Denoise(DenoiseCli),
+    /// Train a learned method's weights on rendered sequences
+    Train(TrainCli),
+    /// Score outputs against references (PSNR, SSIM, relMSE, SMAPE, RMSE, flicker)
+    Score(ScoreCli),
+    /// Time and error (against the f64 oracle) of every core operator in every precision and instruction set
+    Precision(PrecisionCli),
+    /// Print a completion script for a shell
+    Completions {
+        /// The shell
+        #[arg(value_enum)]
+        shell: clap_complete::Shell,
+    },
+    /// Print the man page (roff), or write one page per command into a directory
+    Man {
+        /// Write mcdenoise.1 and mcdenoise-COMMAND.1 into DIR instead of printing the main page
+        #[arg(long, value_name = "DIR")]
+        dir: Option<PathBuf>,
+    },
+}
+
+/// The settings every method shares (`demo` and `denoise`).
+#[derive(Debug, Args)]
+struct SettingsCli {
+    /// Storage and arithmetic precision of every stage
+    #[arg(long, value_enum, value_name = "P", default_value_t = PrecisionKind::F32)]
+    precision: PrecisionKind,
+    /// Worker threads [default: every core]
+    #[arg(long, value_name = "N", value_parser = threads)]
+    threads: Option<usize>,
+    /// Instruction set of every kernel [default: the widest this CPU has]
+    #[arg(long, value_enum, value_name = "ISA")]
+    isa: Option<IsaArg>,
+    /// À-trous colour edge-stopping, in noise variances [default: 64 with B.*, 2048 with one estimate]
+    #[arg(long, value_name = "F", value_parser = phi_color)]
+    phi_color: Option<f32>,
+    /// À-trous: clamp pixels brighter than their 5x5 neighbours' mean + K standard deviations before
+    /// filtering (0: off)
+    #[arg(long, value_name = "K", default_value = "6", value_parser = firefly)]
+    firefly_clamp: f32,
+    /// WSKP: ImportanceNet layers (3 or 6)
+    #[arg(long, value_name = "N", default_value = "6", value_parser = layers, help_heading = "Learned methods")]
+    layers: usize,
+    /// Weights made by 'mcdenoise train' [default: the bundled ones]
+    #[arg(long, value_name = "FILE", help_heading = "Learned methods")]
+    weights: Option<PathBuf>,
+    /// Cross: seed of the initial random weights
+    #[arg(long, value_name = "N", default_value_t = crate::cross::SEED, value_parser = seed, help_heading = "Online method (cross)")]
+    seed: u64,
+    /// Cross: write the network's weights and Adam state here after every frame
+    #[arg(long, value_name = "FILE", help_heading = "Online method (cross)")]
+    save_state: Option<PathBuf>,
+    /// Cross: start from a saved state instead of random weights
+    #[arg(long, value_name = "FILE", help_heading = "Online method (cross)")]
+    load_state: Option<PathBuf>,
+}
+
+impl SettingsCli {
+    fn settings(self) -> Settings {
+        let mut s = Settings { threads: default_threads(), ..Settings::default() };
+        s.precision = self.precision;
+        if let Some(t) = self.threads {
+            s.threads = t;
+        }
+        if let Some(i) = self.isa {
+            s.isa = i.isa();
+        }
+        s.phi_color = self.phi_color;
+        s.firefly_clamp = self.firefly_clamp;
+        s.layers = self.layers;
+        s.weights = self.weights;
+        s.seed = self.seed;
+        s.save_state = self.save_state;
+        s.load_state = self.load_state;
+        s
+    }
+}
+
+#[derive(Debug, Args)]
+struct DemoCli {
+    #[command(flatten)]
+    settings: SettingsCli,
+}
+
+#[derive(Debug, Args)]
+struct DenoiseCli {
+    /// The method
+    #[arg(long, value_enum, value_name = "METHOD")]
+    method: MethodKind,
+    /// Frame files in order, or a directory (its .exr files in name order)
+    #[arg(value_name = "INPUT", required = true)]
+    inputs: Vec<PathBuf>,
+    /// Output directory (one file per input, same name)
+    #[arg(short = 'o', long = "output", value_name = "OUTDIR")]
+    outdir: PathBuf,
+    #[command(flatten)]
+    settings: SettingsCli,
+    /// AFN: without the refinement network
+    #[arg(long, help_heading = "Learned methods")]
+    no_refine: bool,
+    /// Write f16 EXR [default: f32]
+    #[arg(long, help_heading = "Output")]
+    half: bool,
+    /// Also write a PNG preview per frame (clamp(x,0,1)^(1/2.2))
+    #[arg(long, help_heading = "Output")]
+    png: bool,
+    /// Print per-stage times and the memory taken (estimate, peak heap, peak resident size)
+    #[arg(long, help_heading = "Output")]
+    timings: bool,
+    /// Print nothing but warnings and errors (no plan, no progress bar, no summary)
+    #[arg(long, short = 'q', help_heading = "Output", conflicts_with = "json")]
+    quiet: bool,
+    /// Print one JSON object (plan, ms/frame, stages, memory, outputs) instead of the text
+    #[arg(long, help_heading = "Output")]
+    json: bool,
+    /// Refuse a frame whose estimated peak memory is over SIZE (512M, 4G, 1.5GiB), before reading its pixels
+    /// [default: the memory available now]
+    #[arg(long, value_name = "SIZE", value_parser = size)]
+    max_memory: Option<u64>,
+}
+
+#[derive(Debug, Args)]
+#[command(group(clap::ArgGroup::new("stop").args(["steps", "minutes"]).required(true).multiple(true)))]
+struct TrainCli {
+    /// The learned method
+    #[arg(long, value_enum, default_value_t = TrainMethod::Wskp)]
+    method: TrainMethod,
+    /// Training sequences: directories of frames, each with its references in ref/
+    #[arg(long, value_name = "DIR")]
+    data: PathBuf,
+    /// The weights file to write (safetensors)
+    #[arg(short = 'o', long = "output", value_name = "WEIGHTS")]
+    out: PathBuf,
+    /// Stop after N steps
+    #[arg(long, value_name = "N", value_parser = steps)]
+    steps: Option<u64>,
+    /// Stop after M minutes
+    #[arg(long, value_name = "M", value_parser = minutes)]
+    minutes: Option<f64>,
+    /// Validation sequences (mean PSNR printed every --val-every steps)
+    #[arg(long, value_name = "DIR")]
+    val: Option<PathBuf>,
+    /// Steps between validations (0: only at the end)
+    #[arg(long, value_name = "N", default_value = "500", value_parser = every)]
+    val_every: u64,
+    /// WSKP: ImportanceNet layers (3 or 6)
+    #[arg(long, value_name = "N", default_value = "6", value_parser = layers)]
+    layers: usize,
+    /// Crops per step
+    #[arg(long, value_name = "N", default_value = "8", value_parser = batch)]
+    batch: usize,
+    /// Crop side in pixels
+    #[arg(long, value_name = "N", default_value = "128", value_parser = crop)]
+    crop: usize,
+    /// Adam's learning rate
+    #[arg(long, value_name = "F", default_value = "1e-3", value_parser = learning_rate)]
+    lr: f32,
+    /// The loss
+    #[arg(long, value_enum, default_value_t = Loss::Smape)]
+    loss: Loss,
+    /// Gradient norm clip (0: off)
+    #[arg(long, value_name = "F", default_value = "0", value_parser = clip)]
+    clip: f32,
+    /// Seed of the initialisation and of the crop sampling
+    #[arg(long, value_name = "N", default_value = "1", value_parser = seed)]
+    seed: u64,
+    /// Worker threads [default: every core]
+    #[arg(long, value_name = "N", value_parser = threads)]
+    threads: Option<usize>,
+    /// Instruction set [default: the widest this CPU has]
+    #[arg(long, value_enum, value_name = "ISA")]
+    isa: Option<IsaArg>,
+    /// Continue from a checkpoint (WEIGHTS.ckpt)
+    #[arg(long, value_name = "CKPT")]
+    resume: Option<PathBuf>,
+    /// Minutes between checkpoints
+    #[arg(long, value_name = "F", default_value = "5", value_parser = minutes)]
+    checkpoint_minutes: f64,
+    /// A CSV of step, seconds, loss and validation PSNR
+    #[arg(long, value_name = "CSV")]
+    log: Option<PathBuf>,
+    /// AFN: which images the network filters (the single-input variants are the paper's ablation)
+    #[arg(long, value_enum, default_value_t = Variant::Fusion)]
+    variant: Variant,
+}
+
+#[derive(Debug, Args)]
+struct ScoreCli {
+    /// The reference: a file, or a directory whose files match OUT's by name
+    #[arg(short = 'r', long, value_name = "REF")]
+    reference: PathBuf,
+    /// The output: a file, or a directory of frames
+    #[arg(value_name = "OUT")]
+    output: PathBuf,
+    /// Print one JSON object (per file and the mean)
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Debug, Args)]
+struct PrecisionCli {
+    /// Take the inputs from a rendered frame (tiled to the size) instead of synthetic ones
+    #[arg(long, value_name = "FILE")]
+    frame: Option<PathBuf>,
+    /// Frame size
+    #[arg(long, value_name = "WxH", default_value = "1280x720", value_parser = frame_size)]
+    size: (usize, usize),
+    /// Worker threads of the timed runs
+    #[arg(long, value_name = "N", default_value = "1", value_parser = threads)]
+    threads: usize,
+    /// Only these operators (comma-separated)
+    #[arg(long, value_name = "OP", value_delimiter = ',',
+          value_parser = clap::builder::PossibleValuesParser::new(crate::registry::names()))]
+    only: Vec<String>,
+    /// The CSV to write
+    #[arg(long, value_name = "FILE", default_value = "mcdenoise-out/precision.csv")]
+    csv: PathBuf,
+    /// The SVG plot to write
+    #[arg(long, value_name = "FILE", default_value = "mcdenoise-out/precision.svg")]
+    svg: PathBuf,
+}
+
+/// The whole command-line definition (for help, completions and the man page).
+pub fn definition() -> clap::Command {
+    Cli::command()
+}
+
+/// Writes the completion script for `shell` to `out`.
+pub fn completions(shell: clap_complete::Shell, out: &mut dyn std::io::Write) {
+    clap_complete::generate(shell, &mut definition(), "mcdenoise", out);
+}
+
+/// Writes the main man page to `out`, or with `dir` one page per command
+/// into that directory.
+pub fn man(dir: Option<&std::path::Path>, out: &mut dyn std::io::Write) -> Result<()> {
+    let cmd = definition();
+    match dir {
+        None => clap_mangen::Man::new(cmd).render(out).map_err(|e| HostError::write(std::path::Path::new("-"), e)),
+        Some(d) => {
+            std::fs::create_dir_all(d).map_err(|e| HostError::write(d, e))?;
+            clap_mangen::generate_to(cmd, d).map_err(|e| HostError::write(d, e))
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------
+// From clap's result to a Command or one line.
 
 /// Parses the arguments after the program name.
 pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
-    let mut it = args.into_iter();
-    let mut settings = Settings { threads: default_threads(), ..Settings::default() };
-    let Some(first) = it.next() else { return Ok(Command::Demo { settings }) };
-    let first = first.into_string().map_err(|_| usage("command is not valid UTF-8"))?;
-    match first.as_str() {
-        "help" | "--help" | "-h" => Ok(Command::Help),
-        "--version" | "-V" => Ok(Command::Version),
-        "demo" => {
-            while let Some(a) = it.next() {
-                let a = a.into_string().map_err(|_| usage("argument is not valid UTF-8"))?;
-                let v = text(&a, it.next())?;
-                if !parse_settings(&a, &v, &mut settings)? {
-                    return Err(usage(format!("demo: unknown option '{a}'")));
-                }
-            }
-            Ok(Command::Demo { settings })
+    let args: Vec<OsString> = args.into_iter().collect();
+    let cmd = definition();
+    let matches = cmd.clone().try_get_matches_from(std::iter::once(OsString::from("mcdenoise")).chain(args.clone()));
+    let cli = matches.and_then(|m| Cli::from_arg_matches(&m));
+    let cli = match cli {
+        Ok(c) => c,
+        Err(e) => return from_error(&cmd, &args, e),
+    };
+    Ok(match cli.command {
+        None => Command::Demo { settings: Settings { threads: default_threads(), ..Settings::default() } },
+        Some(Sub::Demo(d)) => Command::Demo { settings: d.settings.settings() },
+        Some(Sub::Denoise(d)) => {
+            let mut settings = d.settings.settings();
+            settings.refine = !d.no_refine;
+            Command::Denoise(DenoiseArgs {
+                method: d.method,
+                settings,
+                inputs: d.inputs,
+                outdir: d.outdir,
+                half: d.half,
+                png: d.png,
+                timings: d.timings,
+                max_memory: d.max_memory,
+                quiet: d.quiet,
+                json: d.json,
+            })
         }
-        "denoise" => {
-            let mut method = None;
-            let (mut inputs, mut outdir) = (Vec::new(), None);
-            let (mut half, mut png, mut timings) = (false, false, false);
-            let mut max_memory = None;
-            while let Some(a) = it.next() {
-                match a.to_str() {
-                    Some("--method") => method = Some(MethodKind::parse(&text("--method", it.next())?)?),
-                    Some("-o" | "--output") => {
-                        outdir = Some(PathBuf::from(it.next().ok_or_else(|| usage("-o: expects a directory"))?))
-                    }
-                    Some("--half") => half = true,
-                    Some("--png") => png = true,
-                    Some("--timings") => timings = true,
-                    Some("--no-refine") => settings.refine = false,
-                    Some("--max-memory") => {
-                        let v = text("--max-memory", it.next())?;
-                        max_memory =
-                            Some(crate::memory::parse_size(&v).map_err(|e| usage(format!("--max-memory: {e}")))?);
-                    }
-                    Some(
-                        f @ ("--precision" | "--threads" | "--isa" | "--phi-color" | "--firefly-clamp" | "--layers"
-                        | "--weights" | "--seed" | "--save-state" | "--load-state"),
-                    ) => {
-                        let f = f.to_string();
-                        let v = text(&f, it.next())?;
-                        parse_settings(&f, &v, &mut settings)?;
-                    }
-                    Some(f) if f.starts_with("--") => return Err(usage(format!("denoise: unknown option '{f}'"))),
-                    _ => inputs.push(PathBuf::from(a)),
-                }
-            }
-            let method = method.ok_or_else(|| {
-                usage("denoise: --method is required (none, ta, atrous, sure-atrous, wskp, afn, cross)")
-            })?;
-            let outdir = outdir.ok_or_else(|| usage("denoise: -o OUTDIR is required"))?;
-            if inputs.is_empty() {
-                return Err(usage("denoise: no INPUT given (frame files or a directory)"));
-            }
-            Ok(Command::Denoise(DenoiseArgs { method, settings, inputs, outdir, half, png, timings, max_memory }))
-        }
-        "precision" => {
-            let mut a = crate::report::ReportArgs {
-                frame: None,
-                csv: PathBuf::from("mcdenoise-out/precision.csv"),
-                svg: PathBuf::from("mcdenoise-out/precision.svg"),
-                threads: 1,
-                width: 1280,
-                height: 720,
-                only: Vec::new(),
-            };
-            while let Some(f) = it.next() {
-                let f = f.into_string().map_err(|_| usage("argument is not valid UTF-8"))?;
-                let v = text(&f, it.next())?;
-                match f.as_str() {
-                    "--frame" => a.frame = Some(PathBuf::from(v)),
-                    "--csv" => a.csv = PathBuf::from(v),
-                    "--svg" => a.svg = PathBuf::from(v),
-                    "--threads" => a.threads = number("--threads", &v, 1, 256)?,
-                    "--size" => {
-                        let (ws, hs) =
-                            v.split_once('x').ok_or_else(|| usage(format!("--size: expected WxH, got '{v}'")))?;
-                        a.width = number("--size width", ws, 1, 8192)?;
-                        a.height = number("--size height", hs, 1, 8192)?;
-                    }
-                    "--only" => {
-                        let names = crate::registry::names();
-                        for op in v.split(',') {
-                            if !names.contains(&op) {
-                                return Err(usage(format!(
-                                    "--only: unknown operator '{op}' (one of {})",
-                                    names.join(", ")
-                                )));
-                            }
-                            a.only.push(op.to_string());
-                        }
-                    }
-                    _ => return Err(usage(format!("precision: unknown option '{f}'"))),
-                }
-            }
-            Ok(Command::Precision(a))
-        }
-        "train" => {
+        Some(Sub::Train(t)) => {
             let mut a = crate::train::TrainArgs { threads: default_threads(), ..Default::default() };
-            let mut out = None;
-            let mut data = None;
-            while let Some(f) = it.next() {
-                let f = f.into_string().map_err(|_| usage("argument is not valid UTF-8"))?;
-                let v = text(&f, it.next())?;
-                let float = |flag: &str, lo: f64, hi: f64| -> Result<f64> {
-                    v.trim()
-                        .parse::<f64>()
-                        .ok()
-                        .filter(|x| x.is_finite() && (lo..=hi).contains(x))
-                        .ok_or_else(|| usage(format!("{flag}: expected a number from {lo} to {hi}, got '{v}'")))
-                };
-                match f.as_str() {
-                    "--method" => {
-                        if v != "wskp" && v != "afn" {
-                            return Err(usage(format!("train --method: expected wskp or afn, got '{v}'")));
-                        }
-                        a.method = v;
-                    }
-                    "--data" => data = Some(PathBuf::from(v)),
-                    "--val" => a.val = Some(PathBuf::from(v)),
-                    "-o" | "--output" => out = Some(PathBuf::from(v)),
-                    "--layers" => {
-                        let mut s = Settings::default();
-                        parse_settings("--layers", &v, &mut s)?;
-                        a.layers = s.layers;
-                    }
-                    "--steps" => a.steps = Some(number("--steps", &v, 1, 1 << 40)? as u64),
-                    "--minutes" => a.minutes = Some(float("--minutes", 0.0, 1e6)?),
-                    "--batch" => a.batch = number("--batch", &v, 1, 256)?,
-                    "--crop" => a.crop = number("--crop", &v, 8, 4096)?,
-                    "--lr" => a.lr = float("--lr", 0.0, 1.0)? as f32,
-                    "--clip" => a.clip = float("--clip", 0.0, 1e9)? as f32,
-                    "--loss" => {
-                        a.loss = crate::nn::loss::Loss::parse(&v)
-                            .ok_or_else(|| usage(format!("--loss: expected smape, relmse or l1, got '{v}'")))?
-                    }
-                    "--seed" => a.seed = number("--seed", &v, 0, usize::MAX)? as u64,
-                    "--threads" => a.threads = number("--threads", &v, 1, 256)?,
-                    "--isa" => {
-                        a.isa = Isa::from_name(&v)
-                            .ok_or_else(|| usage(format!("--isa: expected scalar, avx2 or avx512; got '{v}'")))?
-                    }
-                    "--resume" => a.resume = Some(PathBuf::from(v)),
-                    "--checkpoint-minutes" => a.checkpoint_minutes = float("--checkpoint-minutes", 0.0, 1e6)?,
-                    "--val-every" => a.val_every = number("--val-every", &v, 0, 1 << 40)? as u64,
-                    "--log" => a.log = Some(PathBuf::from(v)),
-                    "--variant" => {
-                        a.variant = crate::afn::Variant::parse(&v).ok_or_else(|| {
-                            usage(format!("--variant: expected fusion, ta-only or 1spp-only, got '{v}'"))
-                        })?
-                    }
-                    _ => return Err(usage(format!("train: unknown option '{f}'"))),
-                }
+            a.method = match t.method {
+                TrainMethod::Wskp => "wskp".into(),
+                TrainMethod::Afn => "afn".into(),
+            };
+            a.data = t.data;
+            a.out = t.out;
+            a.steps = t.steps;
+            a.minutes = t.minutes;
+            a.val = t.val;
+            a.val_every = t.val_every;
+            a.layers = t.layers;
+            a.batch = t.batch;
+            a.crop = t.crop;
+            a.lr = t.lr;
+            a.loss = t.loss;
+            a.clip = t.clip;
+            a.seed = t.seed;
+            if let Some(n) = t.threads {
+                a.threads = n;
             }
-            a.data = data.ok_or_else(|| usage("train: --data DIR is required"))?;
-            a.out = out.ok_or_else(|| usage("train: -o WEIGHTS is required"))?;
-            if a.steps.is_none() && a.minutes.is_none() {
-                return Err(usage("train: give --steps N or --minutes M"));
+            if let Some(i) = t.isa {
+                a.isa = i.isa();
             }
-            Ok(Command::Train(a))
+            a.resume = t.resume;
+            a.checkpoint_minutes = t.checkpoint_minutes;
+            a.log = t.log;
+            a.variant = t.variant;
+            Command::Train(a)
         }
-        "score" => {
-            let (mut reference, mut paths, mut json) = (None, Vec::new(), false);
-            while let Some(a) = it.next() {
-                match a.to_str() {
-                    Some("--reference" | "-r") => {
-                        reference = Some(PathBuf::from(it.next().ok_or_else(|| usage("--reference: expects a path"))?))
-                    }
-                    Some("--json") => json = true,
-                    Some(f) if f.starts_with("--") => return Err(usage(format!("score: unknown option '{f}'"))),
-                    _ => paths.push(PathBuf::from(a)),
-                }
-            }
-            let reference = reference.ok_or_else(|| usage("score: --reference REF is required"))?;
-            if paths.len() != 1 {
-                return Err(usage(format!("score: expected one OUT path, got {}", paths.len())));
-            }
-            Ok(Command::Score { reference, output: paths.remove(0), json })
-        }
-        other => Err(usage(format!("unknown command '{other}'; try 'mcdenoise help'"))),
+        Some(Sub::Score(s)) => Command::Score { reference: s.reference, output: s.output, json: s.json },
+        Some(Sub::Precision(p)) => Command::Precision(crate::report::ReportArgs {
+            frame: p.frame,
+            csv: p.csv,
+            svg: p.svg,
+            threads: p.threads,
+            width: p.size.0,
+            height: p.size.1,
+            only: p.only,
+        }),
+        Some(Sub::Completions { shell }) => Command::Completions(shell),
+        Some(Sub::Man { dir }) => Command::Man { dir },
+    })
+}
+
+fn context_strings(e: &clap::Error, kind: ContextKind) -> Vec<String> {
+    match e.get(kind) {
+        Some(ContextValue::String(s)) => vec![s.clone()],
+        Some(ContextValue::Strings(v)) => v.clone(),
+        Some(ContextValue::StyledStr(s)) => vec![s.to_string()],
+        Some(ContextValue::StyledStrs(v)) => v.iter().map(|s| s.to_string()).collect(),
+        _ => Vec::new(),
     }
+}
+
+fn context_string(e: &clap::Error, kind: ContextKind) -> Option<String> {
+    context_strings(e, kind).into_iter().next()
+}
+
+/// `--threads <N>` -> `--threads`; `<INPUT>...` -> `INPUT`.
+fn flag_name(rendered: &str) -> String {
+    let first = rendered.split_whitespace().next().unwrap_or(rendered);
+    first.trim_start_matches('<').trim_end_matches("...").trim_end_matches('>').to_string()
+}
+
+/// `a`, `a or b`, `one of a, b, c;`.
+fn alternatives(values: &[String]) -> String {
+    match values {
+        [one] => one.clone(),
+        [a, b] => format!("{a} or {b}"),
+        _ => format!("one of {};", values.join(", ")),
+    }
+}
+
+/// An argument of `sub` (or of the top level) by its rendering in an error.
+fn find_arg<'a>(cmd: &'a clap::Command, sub: Option<&str>, rendered: &str) -> Option<&'a clap::Arg> {
+    let c = match sub {
+        Some(s) => cmd.find_subcommand(s)?,
+        None => cmd,
+    };
+    let name = flag_name(rendered);
+    c.get_arguments().find(|a| match name.strip_prefix("--") {
+        Some(long) => a.get_long() == Some(long),
+        None => a.get_value_names().is_some_and(|v| v.iter().any(|v| v.as_str() == name)),
+    })
+}
+
+/// A missing argument for people: `-o OUTDIR`, `--method METHOD (one of ...)`.
+fn missing(cmd: &clap::Command, sub: Option<&str>, rendered: &str) -> String {
+    // A required group renders as `<--steps <N>|--minutes <M>>`.
+    let plain = |s: &str| s.replace(['<', '>'], "").replace("...", "");
+    if rendered.contains('|') {
+        let parts: Vec<String> = plain(rendered).split('|').map(|p| p.trim().to_string()).collect();
+        return format!("give {}", parts.join(" or "));
+    }
+    let mut text = plain(rendered);
+    let arg = find_arg(cmd, sub, rendered);
+    if let (Some(a), Some(long)) = (arg, flag_name(rendered).strip_prefix("--")) {
+        if let Some(short) = a.get_short() {
+            text = text.replacen(&format!("--{long}"), &format!("-{short}"), 1);
+        }
+    }
+    let values: Vec<String> = arg
+        .map(|a| {
+            a.get_possible_values().iter().filter(|v| !v.is_hide_set()).map(|v| v.get_name().to_string()).collect()
+        })
+        .unwrap_or_default();
+    if values.is_empty() {
+        format!("{text} is required")
+    } else {
+        format!("{text} is required ({})", values.join(", "))
+    }
+}
+
+/// Turns a clap error into `Command::Help` or `Command::Version` (`--help`,
+/// `--version`) or one usage line naming the command, the flag and the value.
+fn from_error(cmd: &clap::Command, args: &[OsString], e: clap::Error) -> Result<Command> {
+    let sub = args.first().and_then(|a| a.to_str()).filter(|s| cmd.find_subcommand(s).is_some());
+    let at = sub.map(|s| format!("{s} ")).unwrap_or_default();
+    let within = sub.map(|s| format!("{s}: ")).unwrap_or_default();
+    let arg = context_string(&e, ContextKind::InvalidArg);
+    let flag = arg.as_deref().map(flag_name).unwrap_or_default();
+    let value = context_string(&e, ContextKind::InvalidValue).unwrap_or_default();
+    let suggestion =
+        |kind: ContextKind| context_string(&e, kind).map(|s| format!(" (did you mean '{s}'?)")).unwrap_or_default();
+    let line = match e.kind() {
+        ErrorKind::DisplayHelp | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand => {
+            return Ok(Command::Help(e.render().to_string()))
+        }
+        // `mcdenoise denoise --version` too names the program, not `mcdenoise-denoise`.
+        ErrorKind::DisplayVersion => return Ok(Command::Version(format!("mcdenoise {}\n", env!("CARGO_PKG_VERSION")))),
+        ErrorKind::ValueValidation => {
+            let why =
+                std::error::Error::source(&e).map(|s| s.to_string()).unwrap_or_else(|| format!("bad value '{value}'"));
+            format!("{at}{flag}: {why}")
+        }
+        ErrorKind::InvalidValue if value.is_empty() => format!("{at}{flag}: expects a value"),
+        ErrorKind::InvalidValue => {
+            let valid = context_strings(&e, ContextKind::ValidValue);
+            let list = alternatives(&valid);
+            let sep = if list.ends_with(';') { "" } else { "," };
+            format!("{at}{flag}: expected {list}{sep} got '{value}'{}", suggestion(ContextKind::SuggestedValue))
+        }
+        ErrorKind::UnknownArgument => {
+            let what = if arg.as_deref().is_some_and(|a| a.starts_with('-')) {
+                "unknown option"
+            } else {
+                "unexpected argument"
+            };
+            format!("{within}{what} '{}'{}", arg.unwrap_or_default(), suggestion(ContextKind::SuggestedArg))
+        }
+        ErrorKind::InvalidSubcommand => format!(
+            "unknown command '{}'{}; try 'mcdenoise help'",
+            context_string(&e, ContextKind::InvalidSubcommand).unwrap_or_default(),
+            suggestion(ContextKind::SuggestedSubcommand)
+        ),
+        ErrorKind::MissingRequiredArgument => {
+            let first = context_strings(&e, ContextKind::InvalidArg).into_iter().next().unwrap_or_default();
+            format!("{within}{}", missing(cmd, sub, &first))
+        }
+        ErrorKind::ArgumentConflict => format!(
+            "{within}{} cannot be used with {}",
+            arg.unwrap_or_default(),
+            context_string(&e, ContextKind::PriorArg).unwrap_or_default()
+        ),
+        ErrorKind::InvalidUtf8 => format!("{within}an argument is not valid UTF-8"),
+        _ => {
+            let text = e.render().to_string();
+            let first = text.lines().next().unwrap_or("bad arguments");
+            format!("{within}{}", first.trim_start_matches("error: "))
+        }
+    };
+    Err(HostError::Usage(line))
 }

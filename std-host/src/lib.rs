@@ -4,6 +4,8 @@
 //! bands of rows, frame I/O in the input contract, pipelines, metrics and the
 //! `mcdenoise` CLI.
 
+#![warn(missing_docs)]
+
 pub mod afn;
 pub mod aligned;
 pub mod cleanup;
@@ -18,6 +20,7 @@ pub mod output;
 pub mod par;
 pub mod precision;
 pub mod run;
+pub mod sheet;
 pub mod train;
 pub mod weights;
 pub mod wskp;

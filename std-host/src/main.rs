@@ -1,5 +1,7 @@
 //! The `mcdenoise` command.
 
+#![warn(missing_docs)]
+
 use std::process::ExitCode;
 
 use mcdenoise::cli::{self, Command};
@@ -29,14 +31,19 @@ fn main() -> ExitCode {
         eprintln!("mcdenoise: internal error: {msg}{at} (please report this)");
     }));
     let result = match cli::parse(std::env::args_os().skip(1)) {
-        Ok(Command::Help) => {
-            print!("{}", cli::USAGE);
+        Ok(Command::Help(text)) => {
+            print!("{text}");
             Ok(())
         }
-        Ok(Command::Version) => {
-            println!("mcdenoise {}", env!("CARGO_PKG_VERSION"));
+        Ok(Command::Version(text)) => {
+            print!("{text}");
             Ok(())
         }
+        Ok(Command::Completions(shell)) => {
+            cli::completions(shell, &mut std::io::stdout().lock());
+            Ok(())
+        }
+        Ok(Command::Man { dir }) => cli::man(dir.as_deref(), &mut std::io::stdout().lock()),
         Ok(Command::Demo { settings }) => run::demo(&settings),
         Ok(Command::Denoise(a)) => run::denoise_cmd(&a),
         Ok(Command::Score { reference, output, json }) => run::score_cmd(&reference, &output, json),
@@ -48,7 +55,7 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e @ HostError::Usage(_)) => {
             eprintln!("mcdenoise: {e}");
-            eprintln!("(see 'mcdenoise help')");
+            eprintln!("(see 'mcdenoise help' or 'mcdenoise COMMAND --help')");
             ExitCode::from(2)
         }
         Err(e) => {

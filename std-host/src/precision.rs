@@ -18,13 +18,14 @@ use crate::aligned::Aligned;
 use crate::error::{HostError, Result};
 
 /// The precisions a pipeline can run in, by command-line name.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum PrecisionKind {
     /// f32 storage and arithmetic.
     F32,
     /// f16 storage, f32 arithmetic.
     F16,
-    /// f16 storage, every operation rounded to f16.
+    /// f16 storage, every operation rounded to f16 (a study mode, scalar only).
+    #[value(name = "f16-arith")]
     F16Arith,
     /// i16 fixed point, i32 accumulation.
     Fixed,

@@ -52,6 +52,12 @@ pub struct RunReport {
     pub frames: usize,
     /// The method's one-line plan.
     pub plan: String,
+    /// The stages the method built and skipped.
+    pub stages: methods::Plan,
+    /// The buffers the first frame has (by [`Buffer::name`](crate::frame::Buffer::name)).
+    pub buffers: Vec<&'static str>,
+    /// Frame width and height.
+    pub size: (usize, usize),
     /// Per-frame warnings (non-finite values replaced).
     pub warnings: Vec<String>,
     /// The memory estimate of the largest frame.
@@ -67,6 +73,8 @@ pub struct SequenceOptions {
     pub png: bool,
     /// `--max-memory` (without it: the memory available now).
     pub max_memory: Option<u64>,
+    /// No progress bar even on a terminal.
+    pub quiet: bool,
 }
 
 /// Opens frame `path` and checks, from its header, its size against the
@@ -122,7 +130,10 @@ pub fn denoise_sequence(
     let mut den = methods::create(method, settings, &first)?;
     let mut ctx = methods::context(settings)?;
     report.plan = den.plan().line(den.name());
-    let bar = (files.len() > 1 && std::io::stderr().is_terminal()).then(|| {
+    report.stages = den.plan().clone();
+    report.buffers = crate::frame::Buffer::ALL.into_iter().filter(|b| first.has(*b)).map(|b| b.name()).collect();
+    report.size = (first.width, first.height);
+    let bar = (files.len() > 1 && !opts.quiet && std::io::stderr().is_terminal()).then(|| {
         let b = indicatif::ProgressBar::new(files.len() as u64);
         b.set_style(
             indicatif::ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} {msg}")
@@ -165,21 +176,37 @@ pub fn denoise_sequence(
     Ok(report)
 }
 
-/// `mcdenoise denoise`.
+/// `mcdenoise denoise`: the plan and the buffers on stderr and a one-line
+/// summary on stdout (`--timings`: the stages' times and the memory too);
+/// `--json` prints one JSON object instead, `--quiet` nothing but warnings.
 pub fn denoise_cmd(a: &DenoiseArgs) -> Result<()> {
     let t0 = Instant::now();
-    let opts = SequenceOptions { half: a.half, png: a.png, max_memory: a.max_memory };
+    let opts = SequenceOptions { half: a.half, png: a.png, max_memory: a.max_memory, quiet: a.quiet || a.json };
     let rep = denoise_sequence(a.method, &a.settings, &a.inputs, &a.outdir, &opts, |_, _, _| {})?;
-    eprintln!("{}", rep.plan);
+    let seconds = t0.elapsed().as_secs_f64();
     for w in &rep.warnings {
         eprintln!("warning: {w}");
     }
+    if a.json {
+        println!("{}", json_run(a, &rep, seconds));
+        return Ok(());
+    }
+    if a.quiet {
+        return Ok(());
+    }
+    eprintln!("{}; buffers: {}", rep.plan, rep.buffers.join(", "));
+    let frames = rep.frames.max(1) as f64;
     println!(
-        "{}: {} frame(s) -> {} in {:.2} s ({} threads, {}, {})",
+        "{}: {} frame{} of {}x{} -> {}: {:.1} ms/frame ({:.1} in the kernels), {:.2} s in all ({} threads, {}, {})",
         a.method.name(),
         rep.frames,
+        if rep.frames == 1 { "" } else { "s" },
+        rep.size.0,
+        rep.size.1,
         a.outdir.display(),
-        t0.elapsed().as_secs_f64(),
+        seconds * 1e3 / frames,
+        ms(rep.timings.total()) / frames,
+        seconds,
         a.settings.threads,
         a.settings.precision.name(),
         a.settings.isa.name()
@@ -189,6 +216,56 @@ pub fn denoise_cmd(a: &DenoiseArgs) -> Result<()> {
         print_memory(rep.estimate.as_ref());
     }
     Ok(())
+}
+
+/// `denoise --json`: everything the text output says, as one object.
+fn json_run(a: &DenoiseArgs, rep: &RunReport, seconds: f64) -> String {
+    let frames = rep.frames.max(1) as f64;
+    let strings =
+        |v: &mut dyn Iterator<Item = String>| format!("[{}]", v.map(|s| json_string(&s)).collect::<Vec<_>>().join(","));
+    let skipped: Vec<String> = rep
+        .stages
+        .skipped
+        .iter()
+        .map(|(st, why)| format!("{{\"stage\":{},\"reason\":{}}}", json_string(st), json_string(why)))
+        .collect();
+    let timings: Vec<String> = rep
+        .timings
+        .stages()
+        .iter()
+        .map(|(name, d, _)| {
+            format!("{{\"stage\":{},\"ms\":{:.4},\"ms_per_frame\":{:.4}}}", json_string(name), ms(*d), ms(*d) / frames)
+        })
+        .collect();
+    let opt = |v: Option<u64>| v.map_or("null".to_string(), |v| v.to_string());
+    format!(
+        concat!(
+            "{{\"method\":{},\"frames\":{},\"width\":{},\"height\":{},\"threads\":{},\"precision\":{},\"isa\":{},",
+            "\"seconds\":{:.4},\"ms_per_frame\":{:.4},\"kernel_ms_per_frame\":{:.4},",
+            "\"plan\":{{\"built\":{},\"skipped\":[{}]}},\"buffers\":{},\"timings\":[{}],",
+            "\"memory\":{{\"estimate_bytes\":{},\"peak_heap_bytes\":{},\"peak_resident_bytes\":{}}},",
+            "\"outputs\":{},\"warnings\":{}}}"
+        ),
+        json_string(a.method.name()),
+        rep.frames,
+        rep.size.0,
+        rep.size.1,
+        a.settings.threads,
+        json_string(a.settings.precision.name()),
+        json_string(a.settings.isa.name()),
+        seconds,
+        seconds * 1e3 / frames,
+        ms(rep.timings.total()) / frames,
+        strings(&mut rep.stages.built.iter().map(|s| s.to_string())),
+        skipped.join(","),
+        strings(&mut rep.buffers.iter().map(|s| s.to_string())),
+        timings.join(","),
+        opt(rep.estimate.map(|e| e.bytes())),
+        opt(crate::memory::heap().map(|(_, peak)| peak)),
+        opt(crate::memory::peak_resident()),
+        strings(&mut rep.outputs.iter().map(|p| p.display().to_string())),
+        strings(&mut rep.warnings.iter().cloned()),
+    )
 }
 
 /// Prints per-stage totals and per-frame means.
@@ -400,6 +477,11 @@ pub fn demo(settings: &Settings) -> Result<()> {
         settings.isa.name()
     );
     println!("{:<14} {:>10} {:>10} {:>10} {:>8}", "method", "ms/frame", "PSNR dB", "relMSE", "SSIM");
+    // The contact sheet shows the last frame, where the temporal methods have
+    // the most history: the input, every method's output, the reference.
+    let last = files.len() - 1;
+    let (w, h) = (first.info().width, first.info().height);
+    let mut sheet: Vec<(String, Vec<f32>)> = Vec::new();
     // WSKP runs twice, with each bundled ImportanceNet.
     let runs = MethodKind::ALL.into_iter().flat_map(|m| match m {
         MethodKind::Wskp => vec![(m, 3, "wskp-3"), (m, 6, "wskp-6")],
@@ -411,7 +493,11 @@ pub fn demo(settings: &Settings) -> Result<()> {
         let mut scores = Vec::new();
         let mut err = None;
         let opts = SequenceOptions { png: true, ..SequenceOptions::default() };
+        let mut shown = None;
         let rep = denoise_sequence(m, settings, std::slice::from_ref(&dir), &outdir, &opts, |i, out, f| {
+            if i == last {
+                shown = Some(out.to_vec());
+            }
             let r = dir.join("ref").join(files[i].file_name().expect("file"));
             match load_color(&r) {
                 Ok(rf) if (rf.width, rf.height) == (f.width, f.height) => scores.push(metrics::score(
@@ -434,6 +520,9 @@ pub fn demo(settings: &Settings) -> Result<()> {
         if let Some(e) = err {
             return Err(e);
         }
+        if let Some(out) = shown {
+            sheet.push((if m == MethodKind::None { "input".into() } else { name.to_string() }, out));
+        }
         let s = mean_scores(&scores);
         println!(
             "{:<14} {:>10.3} {:>10.3} {:>10.5} {:>8.4}",
@@ -445,5 +534,12 @@ pub fn demo(settings: &Settings) -> Result<()> {
         );
     }
     println!("outputs and PNG previews: {}/<method>/", out_root.display());
+    let reference = load_color(&dir.join("ref").join(files[last].file_name().expect("file")))?;
+    sheet.push(("reference".into(), reference.get(crate::frame::Buffer::Color).expect("colour").to_vec()));
+    let tiles: Vec<(&str, &[f32])> = sheet.iter().map(|(n, v)| (n.as_str(), v.as_slice())).collect();
+    let (rgb, sw, sh) = crate::sheet::contact_sheet(&tiles, w, h, 3, 2);
+    let path = out_root.join("contact-sheet.png");
+    output::write_png_preview(&path, sw, sh, &rgb)?;
+    println!("contact sheet of frame {last} (input, each method, reference): {}", path.display());
     Ok(())
 }

@@ -284,3 +284,199 @@ fn cross_without_second_estimate_names_the_channels() {
     assert_fails(&out, 1, "missing.safetensors");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `--help` of every command exits 0 and shows its usage, its defaults and
+/// the allowed values; `--version` names the program.
+#[test]
+fn every_command_has_help() {
+    for (cmd, needles) in [
+        ("demo", &["[default: f32]", "f16-arith"][..]),
+        ("denoise", &["--method <METHOD>", "sure-atrous", "Dammertz", "[default: 6]", "--quiet", "--json"][..]),
+        ("train", &["[default: smape]", "relmse", "1spp-only", "[default: 128]"][..]),
+        ("score", &["--reference <REF>", "<OUT>"][..]),
+        ("precision", &["[default: 1280x720]", "--only"][..]),
+        ("completions", &["bash", "zsh", "fish"][..]),
+        ("man", &["--dir"][..]),
+    ] {
+        for args in [vec![cmd, "--help"], vec!["help", cmd]] {
+            let out = run(&args);
+            let text = String::from_utf8_lossy(&out.stdout);
+            assert!(out.status.success(), "{args:?}: {}", String::from_utf8_lossy(&out.stderr));
+            assert!(text.contains(&format!("Usage: mcdenoise {cmd}")), "{args:?}: {text}");
+            for n in needles {
+                assert!(text.contains(n), "{args:?} should show '{n}': {text}");
+            }
+        }
+    }
+    let out = run(&["--help"]);
+    assert!(out.status.success() && String::from_utf8_lossy(&out.stdout).contains("denoise"));
+    for args in [&["--version"][..], &["denoise", "--version"][..]] {
+        let out = run(args);
+        assert!(out.status.success());
+        assert_eq!(String::from_utf8_lossy(&out.stdout), format!("mcdenoise {}\n", env!("CARGO_PKG_VERSION")));
+    }
+}
+
+/// A mistyped option, value or command is named with the closest one.
+#[test]
+fn errors_suggest_the_closest_option() {
+    assert_fails(
+        &run(&["denoise", "--methd", "none", "x.exr", "-o", "o"]),
+        2,
+        "unknown option '--methd' (did you mean '--method'?)",
+    );
+    assert_fails(
+        &run(&["denoise", "--method", "atrus", "x.exr", "-o", "o"]),
+        2,
+        "got 'atrus' (did you mean 'atrous'?)",
+    );
+    assert_fails(&run(&["denoize"]), 2, "unknown command 'denoize'");
+    assert_fails(
+        &run(&["denoise", "--method", "none", "--isa", "sse9", "x.exr", "-o", "o"]),
+        2,
+        "--isa: expected one of scalar, avx2, avx512; got 'sse9'",
+    );
+    assert_fails(
+        &run(&["denoise", "--method", "none", "x.exr", "-o", "o", "--quiet", "--json"]),
+        2,
+        "cannot be used with",
+    );
+    assert_fails(&run(&["denoise", "--method", "none", "-o", "o"]), 2, "INPUT is required");
+    assert_fails(&run(&["denoise", "x.exr", "-o", "o"]), 2, "--method METHOD is required (none, ta, atrous");
+    assert_fails(&run(&["score", "out.exr"]), 2, "-r REF is required");
+    assert_fails(
+        &run(&["precision", "--size", "3x0"]),
+        2,
+        "--size: height: expected a whole number from 1 to 8192, got '0'",
+    );
+    assert_fails(&run(&["completions", "tcsh"]), 2, "expected one of bash");
+}
+
+/// Completion scripts and man pages come from the same definition.
+#[test]
+fn completions_and_man_pages() {
+    for shell in ["bash", "zsh", "fish", "elvish", "powershell"] {
+        let out = run(&["completions", shell]);
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(out.status.success() && text.contains("phi-color"), "{shell}: {text}");
+        // The shells whose scripts complete values list the methods.
+        if ["bash", "zsh", "fish"].contains(&shell) {
+            assert!(text.contains("sure-atrous"), "{shell}: {text}");
+        }
+    }
+    let out = run(&["man"]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success() && text.contains(".TH mcdenoise") && text.contains("denoise"), "{text}");
+    let t = tempfile::tempdir().unwrap();
+    let out = run(&["man", "--dir", t.path().to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    for page in ["mcdenoise.1", "mcdenoise-denoise.1", "mcdenoise-train.1", "mcdenoise-score.1"] {
+        let text = std::fs::read_to_string(t.path().join(page)).unwrap();
+        assert!(text.contains(".TH"), "{page}");
+    }
+    let denoise = std::fs::read_to_string(t.path().join("mcdenoise-denoise.1")).unwrap();
+    assert!(denoise.contains("max\\-memory") && denoise.contains("f16\\-arith"), "{denoise}");
+}
+
+/// `denoise` prints its plan and buffers once and a one-line summary with
+/// ms/frame; `--json` one object on stdout and nothing else; `--quiet` nothing.
+#[test]
+fn denoise_summary_json_and_quiet() {
+    let t = tempfile::tempdir().unwrap();
+    let seq = fixtures().join("seq_small");
+    let o = t.path().join("o");
+    let out = run(&["denoise", "--method", "ta", seq.to_str().unwrap(), "-o", o.to_str().unwrap()]);
+    assert!(out.status.success());
+    let (stdout, stderr) = (String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    assert!(stderr.starts_with("ta: stages temporal accumulation") && stderr.contains("buffers: colour"), "{stderr}");
+    assert_eq!(stdout.lines().count(), 1, "{stdout}");
+    assert!(stdout.contains("ta: 4 frames of 64x64") && stdout.contains(" ms/frame "), "{stdout}");
+
+    let out = run(&["denoise", "--method", "ta", "--json", seq.to_str().unwrap(), "-o", o.to_str().unwrap()]);
+    assert!(out.status.success());
+    let (stdout, stderr) = (String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    assert!(stderr.is_empty(), "{stderr}");
+    assert_eq!(stdout.lines().count(), 1, "{stdout}");
+    for key in [
+        "{\"method\":\"ta\",\"frames\":4,",
+        "\"ms_per_frame\":",
+        "\"plan\":{\"built\":[\"temporal accumulation\"",
+        "\"buffers\":[\"colour\"",
+        "\"outputs\":[",
+        "frame_0003.exr\"]",
+    ] {
+        assert!(stdout.contains(key), "{key}: {stdout}");
+    }
+
+    let out = run(&["denoise", "--method", "ta", "--quiet", seq.to_str().unwrap(), "-o", o.to_str().unwrap()]);
+    assert!(out.status.success() && out.stdout.is_empty() && out.stderr.is_empty(), "{out:?}");
+}
+
+/// clap's own consistency checks of the definition (they run only in debug
+/// builds otherwise, where the fuzz target would trip over them).
+#[test]
+fn the_definition_is_consistent() {
+    mcdenoise::cli::definition().debug_assert();
+}
+
+/// The parser is a pure function: no command runs, defaults are filled in.
+#[test]
+fn parse_is_a_function_of_the_arguments() {
+    use mcdenoise::cli::{parse, Command};
+    use std::ffi::OsString;
+    let args = |v: &[&str]| v.iter().map(OsString::from).collect::<Vec<_>>();
+    assert!(matches!(parse(args(&[])), Ok(Command::Demo { .. })));
+    match parse(args(&[
+        "denoise",
+        "--method",
+        "afn",
+        "--no-refine",
+        "--precision",
+        "fixed",
+        "--threads",
+        "3",
+        "a.exr",
+        "b.exr",
+        "-o",
+        "out",
+        "--max-memory",
+        "1G",
+    ])) {
+        Ok(Command::Denoise(d)) => {
+            assert_eq!(d.method, mcdenoise::methods::MethodKind::Afn);
+            assert_eq!(d.settings.precision, mcdenoise::precision::PrecisionKind::Fixed);
+            assert_eq!((d.settings.threads, d.settings.refine, d.settings.layers), (3, false, 6));
+            assert_eq!(d.inputs.len(), 2);
+            assert_eq!(d.max_memory, Some(1 << 30));
+            assert!(!d.quiet && !d.json);
+        }
+        other => panic!("{other:?}"),
+    }
+    match parse(args(&[
+        "train",
+        "--data",
+        "d",
+        "-o",
+        "w.safetensors",
+        "--minutes",
+        "2",
+        "--loss",
+        "relmse",
+        "--variant",
+        "1spp-only",
+    ])) {
+        Ok(Command::Train(t)) => {
+            assert_eq!((t.method.as_str(), t.steps, t.minutes, t.batch, t.crop), ("wskp", None, Some(2.0), 8, 128));
+            assert_eq!(t.loss, mcdenoise::nn::loss::Loss::RelMse);
+            assert_eq!(t.variant, mcdenoise::afn::Variant::OneSppOnly);
+        }
+        other => panic!("{other:?}"),
+    }
+    match parse(args(&["precision", "--size", "64x32", "--only", "conv3x3,atrous"])) {
+        Ok(Command::Precision(p)) => assert_eq!((p.width, p.height, p.only.len(), p.threads), (64, 32, 2, 1)),
+        other => panic!("{other:?}"),
+    }
+    assert!(matches!(parse(args(&["--help"])), Ok(Command::Help(h)) if h.contains("Usage: mcdenoise")));
+    assert!(matches!(parse(args(&["completions", "zsh"])), Ok(Command::Completions(_))));
+}

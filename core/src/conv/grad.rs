@@ -28,6 +28,10 @@ use crate::{Isa, F32};
 
 /// `dz = dy * act'(z)` element by element, `act'` read from the layer's
 /// output `y` (see the module). All three views have one shape.
+///
+/// # Errors
+/// [`Error::ShapeMismatch`] or [`Error::BadParameter`] when an argument's shape, band of rows or
+/// parameter is not as described above.
 pub fn activation_grad(
     act: Activation,
     y: &View<'_, f32>,
@@ -73,6 +77,10 @@ fn check_weights(k: usize, cin: usize, cout: usize, len: usize, what: &'static s
 
 /// `out[ci][co][k-1-ky][k-1-kx] = w[co][ci][ky][kx]`: the weights of the
 /// convolution that maps `dz` (cout channels) to `dx` (cin channels).
+///
+/// # Errors
+/// [`Error::ShapeMismatch`] or [`Error::BadParameter`] when an argument's shape, band of rows or
+/// parameter is not as described above.
 pub fn transpose_weights(k: usize, cin: usize, cout: usize, w: &[f32], out: &mut [f32]) -> Result<()> {
     check_weights(k, cin, cout, w.len(), "conv weights")?;
     check_weights(k, cout, cin, out.len(), "transposed conv weights")?;
@@ -97,6 +105,12 @@ pub fn grad_input_scratch_len(k: usize, cin: usize, cout: usize, width: usize) -
 /// `dx = W^T * dz` into rows `y0 .. y0 + dx.height()` of `dx` (`cin`
 /// planes), from the whole `dz` (`cout` planes) and the weights transposed by
 /// [`transpose_weights`].
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above; [`Error::ScratchTooSmall`] when `scratch` is shorter than this operator's
+/// `*_scratch_len`.
 #[allow(clippy::too_many_arguments)]
 pub fn grad_input(
     isa: Isa,
@@ -118,6 +132,11 @@ pub fn grad_input(
 /// `dw` (`cout * cin * k * k`, `[co][ci][ky][kx]`) and `db` (`cout`, or
 /// none). `x`: the layer's whole input (`cin` planes); `dz`: the gradient of
 /// its pre-activation output (`cout` planes, same size).
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above.
 #[allow(clippy::too_many_arguments)]
 pub fn grad_weights(
     isa: Isa,

@@ -202,6 +202,14 @@ pub fn conv2d_scratch_len<P: ConvPrecision>(k: usize, cin: usize, cout: usize, w
 }
 
 /// Forward convolution into output rows `y0 .. y0 + dst.height()`.
+/// `src`: `layer.cin` planes; `dst`: `layer.cout` planes of `src`'s width, rows `y0 ..`. Scratch:
+/// [`conv2d_scratch_len`] f32 words.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; the errors of [`Conv2d::check`]; in fixed
+/// point, a layer over the bit budget; [`Error::ShapeMismatch`] or [`Error::BadParameter`] when
+/// `src` or `dst` do not fit the layer or the rows are not inside the image;
+/// [`Error::ScratchTooSmall`] when `scratch` is shorter than [`conv2d_scratch_len`].
 pub fn conv2d<P: ConvPrecision>(
     isa: Isa,
     layer: &Conv2d<'_, P::Store>,

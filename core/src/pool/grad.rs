@@ -36,6 +36,11 @@ fn coarse_shape(fine: Shape) -> Shape {
 
 /// The gradient of the 2x2 average pool: fine rows `y0 ..` of `dx` from the
 /// coarse gradient `dy` (of a `dx`-sized image: `full_height` rows).
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above.
 pub fn avg_pool2x2_grad(
     isa: Isa,
     dy: &View<'_, f32>,
@@ -67,6 +72,11 @@ pub fn avg_pool2x2_grad(
 
 /// The gradient of the 2x2 max pool: fine rows `y0 ..` of `dx` from the pool's
 /// whole input `x` and the coarse gradient `dy`.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above.
 pub fn max_pool2x2_grad(
     isa: Isa,
     x: &View<'_, f32>,
@@ -108,6 +118,11 @@ pub fn max_pool2x2_grad(
 
 /// The gradient of the nearest 2x upsample: coarse rows `y0 ..` of `dx`, the
 /// sum of the whole fine gradient `dy` over each cell.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above.
 pub fn upsample_nearest2x_grad(isa: Isa, dy: &View<'_, f32>, dx: &mut ViewMut<'_, f32>, y0: usize) -> Result<()> {
     let isa = isa.check()?;
     let full = dy.shape();
@@ -153,6 +168,11 @@ fn taps(i: usize, n: usize) -> (usize, usize, f32) {
 /// Bilinear 2x upsample (`align_corners = False`) of the coarse `src` into
 /// fine rows `y0 ..` of `dst`, a `dst.width() x full_height` image whose
 /// coarse size is `src`'s.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above.
 pub fn upsample_bilinear2x(
     isa: Isa,
     src: &View<'_, f32>,
@@ -209,6 +229,11 @@ fn reach(j: usize, n: usize, fine: usize) -> ([(usize, f32); 4], usize) {
 
 /// The gradient of [`upsample_bilinear2x`]: coarse rows `y0 ..` of `dx` from
 /// the whole fine gradient `dy`.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above.
 pub fn upsample_bilinear2x_grad(isa: Isa, dy: &View<'_, f32>, dx: &mut ViewMut<'_, f32>, y0: usize) -> Result<()> {
     let isa = isa.check()?;
     let full = dy.shape();
@@ -244,6 +269,11 @@ pub fn upsample_bilinear2x_grad(isa: Isa, dy: &View<'_, f32>, dx: &mut ViewMut<'
 /// `d_coarse` the coarse rows `y0 / 2 .. (y0 + n + 1) / 2`. Inputs whole:
 /// `fine` (C planes), `coarse` (C planes, half size), `alpha` (1 or C
 /// planes), `g` the output's gradient (C planes). `d_alpha` has as many planes as `alpha`.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above.
 #[allow(clippy::too_many_arguments)]
 pub fn composite_grad(
     isa: Isa,

@@ -116,6 +116,11 @@ impl PoolPrecision for Fixed {
 
 /// 2x2 reduction (mean or max) of `src` into coarse rows `y0 .. y0 + dst.height()`;
 /// the full coarse image is `ceil(W/2) x ceil(H/2)`.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above.
 pub fn reduce2x2<P: PoolPrecision>(
     isa: Isa,
     op: Reduce,
@@ -135,6 +140,11 @@ pub fn reduce2x2<P: PoolPrecision>(
 }
 
 /// 2x2 average pool, whole image.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above.
 pub fn avg_pool2x2<P: PoolPrecision>(
     isa: Isa,
     src: &View<'_, P::Store>,
@@ -145,6 +155,11 @@ pub fn avg_pool2x2<P: PoolPrecision>(
 }
 
 /// 2x2 max pool, whole image.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above.
 pub fn max_pool2x2<P: PoolPrecision>(
     isa: Isa,
     src: &View<'_, P::Store>,
@@ -161,6 +176,11 @@ fn check_whole(s: Shape, d: Shape) -> Result<()> {
 /// Nearest-neighbour 2x upsample of the coarse `src` into fine rows
 /// `y0 .. y0 + dst.height()` of a `W x H` image with `ceil(W/2) = src.width()`
 /// and `ceil(H/2) = src.height()`; `full_height` is `H`.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above.
 pub fn upsample_nearest2x<P: PoolPrecision>(
     isa: Isa,
     src: &View<'_, P::Store>,
@@ -189,6 +209,11 @@ pub fn upsample_nearest2x<P: PoolPrecision>(
 /// The scale compositor `o = f - a U(D(f)) + a U(c)` for fine rows `y0 ..`:
 /// replaces the low band of the fine image `f` by the coarse image `c` with
 /// per-pixel weight `a` (1 plane, or one per channel).
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above.
 pub fn composite<P: PoolPrecision>(
     isa: Isa,
     fine: &View<'_, P::Store>,

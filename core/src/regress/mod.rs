@@ -127,6 +127,11 @@ pub fn sigmoid(r: f32) -> f32 {
 
 /// The per-pixel variance estimate of `src` (3 planes) for rows `y0 ..
 /// y0 + out.height()` into `out` (1 plane).
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above.
 pub fn variance_rows(isa: Isa, src: &View<'_, f32>, out: &mut ViewMut<'_, f32>, y0: usize) -> Result<()> {
     let isa = isa.check()?;
     let s = src.shape();
@@ -481,6 +486,12 @@ fn solve(a: &mut [f32; COEFFS * COEFFS], r: &[f32; COEFFS]) -> [f32; COEFFS] {
 /// into `out` (3 planes): centres solved on demand into a ring in `scratch`
 /// ([`regression_scratch_len`]), then every pixel blended from the centres
 /// within +-8 px.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above; [`Error::ScratchTooSmall`] when `scratch` is shorter than this operator's
+/// `*_scratch_len`.
 pub fn regression_rows(
     isa: Isa,
     inp: &RegressionInputs<'_>,
@@ -839,6 +850,12 @@ fn check_params(what: &'static str, s: Shape, v: Shape, y0: usize, c: usize) -> 
 /// The filter for rows `y0 .. y0 + out.height()`: `params` holds the six raw
 /// network outputs of those rows, `out` gets 9 planes (output A, output B,
 /// combined output). `scratch`: [`filter_scratch_len`].
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above; [`Error::ScratchTooSmall`] when `scratch` is shorter than this operator's
+/// `*_scratch_len`.
 pub fn filter_rows(
     isa: Isa,
     inp: &FilterInputs<'_>,
@@ -897,6 +914,12 @@ pub fn filter_rows(
 /// `grad` holds the loss's gradients of output A and output B (6 planes) of
 /// those rows, `dparams` gets the gradients of the six raw outputs.
 /// `scratch`: [`filter_scratch_len`].
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above; [`Error::ScratchTooSmall`] when `scratch` is shorter than this operator's
+/// `*_scratch_len`.
 pub fn filter_grad_rows(
     isa: Isa,
     inp: &FilterInputs<'_>,

@@ -44,6 +44,11 @@ use crate::Isa;
 
 /// `dx_i = y_i (dy_i - sum_j y_j dy_j)` per pixel over the channels: `y` the
 /// softmax's output, `dy` its gradient, all three one shape.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above.
 pub fn channel_softmax_grad(isa: Isa, y: &View<'_, f32>, dy: &View<'_, f32>, dx: &mut ViewMut<'_, f32>) -> Result<()> {
     let isa = isa.check()?;
     check_shape("softmax gradient", y.shape(), dy.shape())?;
@@ -67,6 +72,11 @@ pub fn channel_softmax_grad(isa: Isa, y: &View<'_, f32>, dy: &View<'_, f32>, dx:
 }
 
 /// `y = 1 / (1 + e^-x)` element by element (0 for NaN).
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above.
 pub fn sigmoid(isa: Isa, x: &View<'_, f32>, y: &mut ViewMut<'_, f32>) -> Result<()> {
     let isa = isa.check()?;
     check_shape("sigmoid output", x.shape(), y.shape())?;
@@ -91,6 +101,11 @@ pub fn sigmoid(isa: Isa, x: &View<'_, f32>, y: &mut ViewMut<'_, f32>) -> Result<
 }
 
 /// `dx = dy y (1 - y)` from the sigmoid's output `y`.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above.
 pub fn sigmoid_grad(isa: Isa, y: &View<'_, f32>, dy: &View<'_, f32>, dx: &mut ViewMut<'_, f32>) -> Result<()> {
     let isa = isa.check()?;
     check_shape("sigmoid gradient", y.shape(), dy.shape())?;
@@ -188,6 +203,12 @@ fn logit(v: f32) -> f32 {
 /// The gradients of the fused importance filter (see the module) for output
 /// rows `y0 .. y0 + n`: `g` is the output's gradient (the radiance's channels,
 /// whole image), the inputs as [`super::fused_filter`] takes them (f32).
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above; [`Error::ScratchTooSmall`] when `scratch` is shorter than this operator's
+/// `*_scratch_len`.
 pub fn fused_filter_grad(
     isa: Isa,
     inp: &FusedInputs<'_, f32>,

@@ -215,6 +215,14 @@ pub fn window_scratch_len<P: SoftmaxPrecision>(path: WindowPath, k: usize, chann
 
 /// The importance filter for one window size (WSKP eq. 3–4):
 /// `dst = sum_q exp(I(q)) r(q) / sum_q exp(I(q))` over the `k x k` window.
+/// `logits`: one plane, `radiance`'s width and height; `dst`: `radiance`'s channels and width, rows
+/// `y0 ..`. Scratch: [`window_scratch_len`] f32 words.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::BadParameter`] when `k` is even or
+/// above [`MAX_WINDOW`] or the rows are not inside the image; [`Error::ShapeMismatch`] when
+/// `logits` or `dst` do not fit `radiance`; [`Error::ScratchTooSmall`] when `scratch` is shorter
+/// than [`window_scratch_len`].
 #[allow(clippy::too_many_arguments)]
 pub fn window_filter<P: SoftmaxPrecision>(
     isa: Isa,
@@ -232,6 +240,15 @@ pub fn window_filter<P: SoftmaxPrecision>(
 }
 
 /// The fused importance filter (WSKP eq. 5) for output rows `y0 .. y0 + dst.height()`.
+/// Shapes: one importance plane per size and, when given, one fusion plane per size and the albedo,
+/// all of `inp.radiance`'s width and height; `dst`: the radiance's channels and width, rows `y0
+/// ..`. Scratch: [`fused_scratch_len`] f32 words.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::BadParameter`] when there are no
+/// sizes or more than [`MAX_FUSED`], a size is even or above [`MAX_WINDOW`], or the rows are not
+/// inside the image; [`Error::ShapeMismatch`] when a plane does not fit the radiance;
+/// [`Error::ScratchTooSmall`] when `scratch` is shorter than [`fused_scratch_len`].
 pub fn fused_filter<P: SoftmaxPrecision>(
     isa: Isa,
     path: WindowPath,
@@ -279,6 +296,11 @@ pub fn fused_filter<P: SoftmaxPrecision>(
 /// plane `j` of `dst` is `w_p(p + o_j) = exp(I(p + o_j)) / sum_{q in W_k(p)} exp(I(q))`
 /// for in-image taps, 0 for taps outside. Each pixel's weights sum to one.
 /// `dst` holds `k*k` planes for rows `y0 ..`.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::BadParameter`] when `k` is even or
+/// above [`MAX_WINDOW`], `logits` is not one plane, or the rows are not inside the image;
+/// [`Error::ShapeMismatch`] when `dst` is not `k*k` planes of `logits`' width.
 pub fn importance_kernels<P: SoftmaxPrecision>(
     isa: Isa,
     k: usize,
@@ -304,6 +326,11 @@ pub fn importance_kernels<P: SoftmaxPrecision>(
 /// largest logit weighs exactly 1 before normalisation, so any finite or
 /// infinite logits give weights in `[0, 1]` summing to one; NaN counts as
 /// `-LOGIT_LIMIT`). `dst` has the shape of `src`.
+/// No scratch.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] when `dst`'s shape
+/// differs from `src`'s.
 pub fn channel_softmax<P: SoftmaxPrecision>(
     isa: Isa,
     src: &View<'_, P::Store>,

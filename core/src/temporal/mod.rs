@@ -122,6 +122,11 @@ impl TemporalPrecision for Fixed {
 
 /// One accumulation step for output rows `y0 .. y0 + color.height()`.
 /// Needs either `motion` or both `position` and `prev_position`.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above.
 pub fn accumulate<P: TemporalPrecision>(
     isa: Isa,
     inp: &TemporalInputs<'_, P::Store>,

@@ -138,6 +138,11 @@ impl TonemapPrecision for Fixed {
 
 /// Applies `op` to every element of `src` into `dst` (same shape; they may
 /// not alias — run it in place through a copy).
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above.
 pub fn map<P: TonemapPrecision>(
     isa: Isa,
     op: Map,
@@ -160,6 +165,11 @@ fn check_modulate(src_shape: crate::Shape, albedo: crate::Shape, dst: crate::Sha
 }
 
 /// `dst = src / (albedo + eps)`.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above.
 pub fn demodulate<P: TonemapPrecision>(
     isa: Isa,
     src: &View<'_, P::Store>,
@@ -174,6 +184,11 @@ pub fn demodulate<P: TonemapPrecision>(
 }
 
 /// `dst = src * (albedo + eps)`.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
+/// [`Error::BadParameter`] when an argument's shape, band of rows or parameter is not as described
+/// above.
 pub fn remodulate<P: TonemapPrecision>(
     isa: Isa,
     src: &View<'_, P::Store>,

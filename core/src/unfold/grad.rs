@@ -17,6 +17,12 @@ use crate::{check_kernel_size, Isa};
 /// The gradients of [`super::apply`] for rows `y0 ..` of `d_kernel` (`k*k`
 /// planes) and `d_src` (the source's channels), either of which may be
 /// omitted: `kernel`, `src` and `g` whole.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`](crate::Error::IsaUnsupported) when this CPU lacks `isa`;
+/// [`Error::ShapeMismatch`](crate::Error::ShapeMismatch) or
+/// [`Error::BadParameter`](crate::Error::BadParameter) when an argument's shape, band of rows or
+/// parameter is not as described above.
 #[allow(clippy::too_many_arguments)]
 pub fn apply_grad(
     isa: Isa,

@@ -92,6 +92,15 @@ pub fn scratch_len<P: UnfoldPrecision>(k: usize, channels: usize, width: usize) 
 /// Applies a `k x k` per-pixel kernel map to every channel of `src`.
 ///
 /// `kernel`: `k*k` planes, same width and height as `src`; `dst`: same shape as `src`.
+/// Scratch: [`scratch_len`]`::<P>(k, src.channels(), src.width())` f32 words.
+///
+/// # Errors
+/// [`Error::IsaUnsupported`](crate::Error::IsaUnsupported) when this CPU lacks `isa`;
+/// [`Error::BadParameter`](crate::Error::BadParameter) when `k` is even or above [`MAX_KERNEL`];
+/// [`Error::ShapeMismatch`](crate::Error::ShapeMismatch) when `kernel` is not `k*k` planes of
+/// `src`'s size or `dst` not `src`'s shape;
+/// [`Error::ScratchTooSmall`](crate::Error::ScratchTooSmall) when `scratch` is shorter than
+/// [`scratch_len`].
 pub fn apply<P: UnfoldPrecision>(
     isa: Isa,
     k: usize,
@@ -106,6 +115,11 @@ pub fn apply<P: UnfoldPrecision>(
 
 /// Like [`apply`] for the output rows `y0 .. y0 + dst.height()` only; `dst`
 /// holds just those rows.
+/// Scratch: [`scratch_len`]`::<P>(k, src.channels(), src.width())` f32 words.
+///
+/// # Errors
+/// As [`apply`], and [`Error::BadParameter`](crate::Error::BadParameter) when the rows `y0 .. y0 +
+/// dst.height()` are not inside `src`.
 pub fn apply_rows<P: UnfoldPrecision>(
     isa: Isa,
     k: usize,

@@ -23,21 +23,21 @@ pub use atrous::Atrous;
 pub use basic::{scene_scale, Passthrough, TemporalAccumulation, POSITION_TOLERANCE};
 
 /// The methods, by command-line name.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum MethodKind {
     /// The input, through the same I/O and precision (for scoring the input).
     None,
     /// Temporal accumulation only (the baseline every learned method is compared with).
     Ta,
-    /// Edge-avoiding à-trous wavelet filter, 5 levels.
+    /// Edge-avoiding à-trous wavelet filter, 5 levels (Dammertz et al. 2010).
     Atrous,
-    /// À-trous with per-pixel SURE shrinkage of the detail coefficients.
+    /// À-trous with per-pixel SURE shrinkage of the detail coefficients (Kim, Moon, Yoon 2016).
     SureAtrous,
-    /// Weight-sharing kernel prediction: TA, the ImportanceNet, the fused filter.
+    /// Weight-sharing kernel prediction: TA, the ImportanceNet, the fused filter (Fan et al. 2021).
     Wskp,
-    /// The adaptive fusion network: 1 spp and TA filtered at two scales, fused, refined.
+    /// The adaptive fusion network: 1 spp and TA filtered at two scales, fused, refined (Lee et al. 2024).
     Afn,
-    /// Cross-regression pilots and a U-Net trained online, one step per frame.
+    /// Cross-regression pilots and a U-Net trained online, one step per frame (Choi et al. 2024).
     Cross,
 }
 
@@ -151,7 +151,7 @@ pub struct Settings {
     /// the second estimate, 2048 without).
     pub phi_color: Option<f32>,
     /// À-trous: the firefly clamp's threshold in local standard deviations
-    /// (0: off; default [`atrous::FIREFLY_K`]).
+    /// (0: off; default 6).
     pub firefly_clamp: f32,
     /// Learned methods: network layers (WSKP: 3 or 6).
     pub layers: usize,

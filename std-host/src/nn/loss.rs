@@ -3,11 +3,12 @@
 //! `(x - r)^2 / (r^2 + eps)` (eps 0.01) and L1 `|x - r|`.
 
 /// Which loss.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Loss {
     /// Symmetric mean absolute percentage error, eps 0.01.
     Smape,
     /// Relative mean squared error, eps 0.01.
+    #[value(name = "relmse")]
     RelMse,
     /// Mean absolute error.
     L1,

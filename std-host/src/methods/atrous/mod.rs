@@ -110,7 +110,7 @@ pub struct Atrous<P: HostPrecision> {
 
 impl<P: HostPrecision> Atrous<P> {
     /// Memory per frame (see [`crate::memory`]), replaying
-    /// [`Denoiser::denoise`]: the buffers kept across frames ([`Bufs`]), the
+    /// [`Denoiser::denoise`]: the buffers kept across frames (`Bufs`), the
     /// guides and level-0 images in storage (f32 borrows the frame's), the
     /// output, the fixed-point decode of the kept levels (`sure-atrous`) and
     /// the output's round trip through the storage type; with the band
