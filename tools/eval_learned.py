@@ -7,7 +7,8 @@ and Intel Open Image Denoise.
 
     python3 tools/eval_learned.py --test /work/data/test --weights DIR -o OUT_DIR
 
-DIR holds wskp6.safetensors, wskp3.safetensors, afn.safetensors (made by
+DIR holds wskp6.safetensors, wskp3.safetensors, afn.safetensors and the
+ablation's afn-ta-only.safetensors, afn-1spp-only.safetensors (made by
 `mcdenoise train`, commands in docs/training.md) and optionally
 torch_wskp6.safetensors (tools/torch_wskp.py train). OUT_DIR gets
 quality.json (everything), quality.md (the tables) and per-frame PSNR CSVs.
@@ -58,6 +59,12 @@ def methods(weights):
         m.append(('afn no-refine', 'mcd', ['--method', 'afn', '--weights', w('afn.safetensors'), '--no-refine']))
         for p in ('f32', 'f16', 'fixed'):
             m.append(('afn ' + p, 'mcd', ['--method', 'afn', '--weights', w('afn.safetensors'), '--precision', p]))
+    # The paper's ablation (its Table 11): the same network trained on one
+    # input only (`mcdenoise train --method afn --variant ...`), with its
+    # refinement as trained.
+    for v in ('ta-only', '1spp-only'):
+        if os.path.exists(w('afn-%s.safetensors' % v)):
+            m.append(('afn ' + v, 'mcd', ['--method', 'afn', '--weights', w('afn-%s.safetensors' % v)]))
     if os.path.exists(w('torch_wskp6.safetensors')):
         m.append(('pytorch wskp6', 'torch', ['--weights', w('torch_wskp6.safetensors'), '--layers', '6']))
     m.append(('oidn fast', 'oidn', ['--quality', 'fast']))
