@@ -10,7 +10,8 @@
 //! multiply-adds per pixel for the kernel predictor, 2.7 k for the
 //! refinement):
 //! - everything is filtered in demodulated irradiance `c = x / (albedo +
-//!   EPS)` and remodulated at the end, as the paper's loss on `o * albedo`;
+//!   EPS)` and remodulated at the end, as the paper's loss on `o * albedo`
+//!   (in fixed point, emitters by 1, as WSKP's [`crate::wskp::inputs`]);
 //! - network input (13 channels): `clamp(r, 0, 1)^(1/2.2)` of the 1-spp and
 //!   of the TA radiance (3 + 3), albedo (3), `n * 0.5 + 0.5` (3), depth
 //!   normalised over the frame (1);
@@ -135,7 +136,8 @@ pub fn check_inputs(f: &Frame) -> Result<()> {
 
 /// A frame's tensors from its accumulated radiance `t`: the network input
 /// `x` (13 planes), the demodulated 1-spp and TA irradiance `c1`, `ct` (3
-/// each) and the remodulation albedo `alb` (3, `a + EPS`).
+/// each) and the remodulation albedo `alb` (3, `a + EPS`); `emitters` as
+/// for [`crate::wskp::inputs`].
 #[allow(clippy::too_many_arguments)]
 pub fn inputs(
     pool: &Pool,
@@ -147,6 +149,7 @@ pub fn inputs(
     c1: &mut [f32],
     ct: &mut [f32],
     alb: &mut [f32],
+    emitters: bool,
 ) -> Result<()> {
     let n = f.width * f.height;
     let r = f.require(Buffer::Color, "afn")?;
@@ -186,7 +189,8 @@ pub fn inputs(
             let (cr1, crt) = rest.split_at_mut(3);
             let (rv, tv, av) = (seg(r, ch, n, start, len), seg(t, ch, n, start, len), seg(a, ch, n, start, len));
             for i in 0..len {
-                let q = av[i] + EPS;
+                // Emitters are demodulated (and remodulated) by 1.
+                let q = if emitters && crate::methods::is_emitter(a, n, start + i) { 1.0 } else { av[i] + EPS };
                 al[ch][i] = q;
                 cr1[ch][i] = rv[i] / q;
                 crt[ch][i] = tv[i] / q;
@@ -631,7 +635,8 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
         }
         let [x, c1, ct, alb] = bufs.get_disjoint_mut([0, 1, 2, 3]).expect("four buffers");
         let variant = self.variant;
-        t.time("network inputs", || inputs(&ctx.pool, isa, variant, f, &ta, x, c1, ct, alb))?;
+        let emitters = P::NAME == "fixed";
+        t.time("network inputs", || inputs(&ctx.pool, isa, variant, f, &ta, x, c1, ct, alb, emitters))?;
         if self.infer.is_none() {
             let (body, head_at) = body_net(&self.kernel_net)?;
             let last = *self.kernel_net.convs.last().expect("the head is a conv");

@@ -304,7 +304,7 @@ impl Model {
                         wskp::check_inputs(f)?;
                         let (c, rest) = rest.split_at_mut(3 * n);
                         let (alb, rf) = rest.split_at_mut(3 * n);
-                        wskp::inputs(&pool, isa, f, t, x, c, alb)?;
+                        wskp::inputs(&pool, isa, f, t, x, c, alb, false)?;
                         rf.copy_from_slice(r);
                     }
                     Model::Afn(variant) => {
@@ -313,7 +313,7 @@ impl Model {
                         let (ct, rest) = rest.split_at_mut(3 * n);
                         let (alb, rest) = rest.split_at_mut(3 * n);
                         let (rf, feats) = rest.split_at_mut(3 * n);
-                        afn::inputs(&pool, isa, variant, f, t, x, c1, ct, alb)?;
+                        afn::inputs(&pool, isa, variant, f, t, x, c1, ct, alb, false)?;
                         rf.copy_from_slice(r);
                         feats.copy_from_slice(&x[6 * n..]);
                     }

@@ -7,7 +7,8 @@
 //! the temporally accumulated radiance `t` (3), albedo `a` (3), `n * 0.5 +
 //! 0.5` of the normal (3), depth normalised to `[0, 1]` over the frame (1).
 //! The filter runs on the demodulated irradiance `c = t / (a + EPS)` and
-//! remodulates with `a + EPS`:
+//! remodulates with `a + EPS` (in fixed point, 1 instead of `a + EPS` for
+//! emitters, [`crate::methods::EMITTER_ALBEDO`]; see [`inputs`]):
 //! `out(p) = (a(p) + EPS) sum_k alpha_k(p) [sum_q e_k(q) c(q)] / [sum_q e_k(q)]`.
 //!
 //! ImportanceNet: 6 layers (the authors': 10 -> 14, four 14 -> 14, 14 -> 12)
@@ -65,6 +66,12 @@ pub fn check_inputs(f: &Frame) -> Result<()> {
 /// frame from its accumulated radiance `t` (3 planes): `x` (10 planes), `c`
 /// (3), `alb` (3, `a + EPS`). Runs of pixels in parallel on `pool`; the
 /// gamma through the core's tone map on `isa` (its SIMD `pow`).
+///
+/// `emitters`: demodulate (and remodulate) emitters by 1. Fixed point needs
+/// it (an emitter's `radiance / EPS` would set the input format and leave
+/// ordinary irradiance a few units); the bundled networks were trained
+/// without it, and in f32 it costs them 0.2 to 0.5 dB on sequences with
+/// lights in view, so f32 and f16 run without it until they are retrained.
 #[allow(clippy::too_many_arguments)]
 pub fn inputs(
     pool: &crate::par::Pool,
@@ -74,6 +81,7 @@ pub fn inputs(
     x: &mut [f32],
     c: &mut [f32],
     alb: &mut [f32],
+    emitters: bool,
 ) -> Result<()> {
     let n = f.width * f.height;
     let a = f.require(Buffer::Albedo, "wskp")?;
@@ -107,10 +115,10 @@ pub fn inputs(
                 *o = v * 0.5 + 0.5;
             }
             let (cs, als) = runs[10..].split_at_mut(3);
-            for (((co, ao), &tv), &av) in
-                cs[ch].iter_mut().zip(als[ch].iter_mut()).zip(tv).zip(seg(a, ch, n, start, len))
-            {
-                *ao = av + EPS;
+            for (i, ((co, ao), &tv)) in cs[ch].iter_mut().zip(als[ch].iter_mut()).zip(tv).enumerate() {
+                // Emitters are demodulated (and remodulated) by 1.
+                let emitter = emitters && crate::methods::is_emitter(a, n, start + i);
+                *ao = if emitter { 1.0 } else { a[ch * n + start + i] + EPS };
                 *co = tv / *ao;
             }
         }
@@ -290,7 +298,8 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
                 &bufs.ta
             }
         };
-        t.time("network inputs", || inputs(&ctx.pool, isa, f, ta, &mut bufs.x, &mut bufs.c, &mut bufs.alb))?;
+        let emitters = P::NAME == "fixed";
+        t.time("network inputs", || inputs(&ctx.pool, isa, f, ta, &mut bufs.x, &mut bufs.c, &mut bufs.alb, emitters))?;
         if self.infer.is_none() {
             // Fixed point: the formats from an f32 run on the first frame.
             let ranges = if P::NAME == "fixed" {

@@ -20,6 +20,22 @@ mod atrous;
 mod basic;
 
 pub use atrous::Atrous;
+
+/// Pixels whose albedo is below this in every channel are taken for
+/// emitters seen directly (or black surfaces). Demodulating them by
+/// `albedo + eps` would give their radiance over the epsilon (100 to 1000
+/// times any neighbour's irradiance), which bleeds light through the
+/// filters and, in fixed point, sets the format of the whole image; the
+/// à-trous methods, and the learned ones in fixed point, divide them by 1
+/// instead (and remodulate by 1).
+pub const EMITTER_ALBEDO: f32 = 1e-3;
+
+/// Whether pixel `i` of the 3-plane albedo `a` (`n` pixels a plane) is an
+/// emitter ([`EMITTER_ALBEDO`]).
+#[inline]
+pub fn is_emitter(a: &[f32], n: usize, i: usize) -> bool {
+    a[i] < EMITTER_ALBEDO && a[n + i] < EMITTER_ALBEDO && a[2 * n + i] < EMITTER_ALBEDO
+}
 pub use basic::{scene_scale, Passthrough, TemporalAccumulation, POSITION_TOLERANCE};
 
 /// The methods, by command-line name.

@@ -140,19 +140,7 @@ pub(super) fn prepare(
     });
 }
 
-/// Pixels whose albedo is below this (the albedo epsilon) in every channel
-/// are emitters seen
-/// directly (or black): they are demodulated by 1 instead of `albedo +
-/// eps` (their radiance over the epsilon would be up to 1000 times any
-/// neighbour's, setting the fixed-point format and opening colour gates),
-/// left alone by the firefly clamp, and passed through to the output.
-pub(super) const EMITTER_ALBEDO: f32 = 1e-3;
-
-/// Whether pixel `i` of the 3-plane albedo `al` (`n` pixels a plane) is an emitter.
-#[inline]
-pub(super) fn is_emitter(al: &[f32], n: usize, i: usize) -> bool {
-    al[i] < EMITTER_ALBEDO && al[n + i] < EMITTER_ALBEDO && al[2 * n + i] < EMITTER_ALBEDO
-}
+pub(super) use crate::methods::is_emitter;
 
 /// What channel `c` of pixel `i` is demodulated by: `albedo + eps`, or 1 for an emitter.
 #[inline]
@@ -168,8 +156,8 @@ pub(super) fn demod_factor(al: &[f32], n: usize, c: usize, i: usize) -> f32 {
 /// whose luminance (mean of the channels) `L` exceeds `T = m + k s`, with
 /// `m` and `s` the mean and standard deviation of its 5x5 neighbours (the
 /// centre left out, the window clipped at the border), is scaled by `T / L`
-/// (its colour kept). Pixels whose albedo is below [`EMITTER_ALBEDO`] in
-/// every channel are left alone. `lum` and `fac` are `w h` floats of scratch.
+/// (its colour kept). Emitters ([`crate::methods::EMITTER_ALBEDO`]) are
+/// left alone (they are passed through to the output). `lum` and `fac` are `w h` floats of scratch.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn firefly_clamp(
     ctx: &Ctx,
