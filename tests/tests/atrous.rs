@@ -520,3 +520,33 @@ fn noise_estimates_equal_the_sorting_reference() {
         }
     }
 }
+
+/// A negative or non-finite distance scale is refused, not filtered with.
+#[test]
+fn step_refuses_a_bad_distance_scale() {
+    let (w, h) = (9, 5);
+    let src = Img::random(3, w, h, 0.0, 1.0, 7);
+    let noise = Img::random(1, w, h, 0.01, 0.1, 8);
+    let normal = Img::filled(3, w, h, 0.5);
+    let position = Img::random(3, w, h, 0.0, 1.0, 9);
+    let guides =
+        AtrousGuides { noise: noise.view(), normal: Some(normal.view()), position: Some(position.view()), depth: None };
+    let mut scratch = vec![0.0f32; atrous::step_scratch_len::<F32>(0)];
+    for bad in [-1.0, f32::NAN, f32::INFINITY] {
+        let params = AtrousParams { sigma_distance: bad, ..AtrousParams::default() };
+        let mut out = Img::zeros(3, w, h);
+        let r = atrous::step::<F32>(
+            Isa::Scalar,
+            0,
+            1,
+            false,
+            &params,
+            &guides,
+            &src.view(),
+            &mut out.view_mut(),
+            0,
+            &mut scratch,
+        );
+        assert!(r.is_err(), "sigma_distance {bad} was accepted");
+    }
+}

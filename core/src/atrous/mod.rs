@@ -209,6 +209,13 @@ pub fn step_scratch_len<P: AtrousPrecision>(level: u32) -> usize {
 /// the filtered variance and the normalised centre weight. `scratch` holds
 /// at least [`step_scratch_len`] floats (its contents are ignored). The
 /// result does not depend on how the rows are split into bands.
+///
+/// # Errors
+/// An instruction set this CPU lacks; `level` above [`MAX_LEVEL`]; `groups`
+/// not 1 or 2; a sigma or `phi_color` that is not positive and finite, a
+/// negative or non-finite `sigma_distance` or `eps`; guides or `src` of
+/// another size than `src`, `dst` not a band of it starting at `y0`, or with
+/// the wrong channel counts; `scratch` shorter than [`step_scratch_len`].
 #[allow(clippy::too_many_arguments)]
 pub fn step<P: AtrousPrecision>(
     isa: Isa,
@@ -233,7 +240,8 @@ pub fn step<P: AtrousPrecision>(
     let positive = |v: f32| v > 0.0 && v.is_finite();
     let sigmas_ok =
         positive(p.phi_color) && positive(p.sigma_normal) && positive(p.sigma_plane) && positive(p.sigma_depth);
-    if !(sigmas_ok && p.eps >= 0.0 && p.eps.is_finite()) {
+    let distance_ok = p.sigma_distance >= 0.0 && p.sigma_distance.is_finite();
+    if !(sigmas_ok && distance_ok && p.eps >= 0.0 && p.eps.is_finite()) {
         return Err(Error::BadParameter { what: "a-trous parameters", expected: "positive finite sigmas" });
     }
     let s = src.shape();

@@ -91,7 +91,12 @@ fn nb_3x3(r: &[&[f32]; 3], x: usize) -> [f32; 9] {
 }
 
 /// The local noise variance of a single estimate (see the module): rows
-/// `y0 ..` of `dst` (1 plane) from `src` (3 planes, the whole image).
+/// `y0 ..` of `dst` (1 plane) from `src` (3 planes, the whole image). No
+/// scratch.
+///
+/// # Errors
+/// `src` without 3 planes, or `dst` not a 1-plane band of the same width
+/// starting at `y0` inside the image.
 pub fn local_noise_rows(src: &View<'_, f32>, dst: &mut ViewMut<'_, f32>, y0: usize) -> Result<()> {
     let s = src.shape();
     check_shape("noise estimate input", Shape::new(3, s.width, s.height), s)?;
@@ -132,7 +137,10 @@ pub fn local_noise_rows(src: &View<'_, f32>, dst: &mut ViewMut<'_, f32>, y0: usi
 }
 
 /// The 3x3 median (of the in-image pixels) times 1.27: rows `y0 ..` of
-/// `dst` from `src` (1 plane each, `src` the whole image).
+/// `dst` from `src` (1 plane each, `src` the whole image). No scratch.
+///
+/// # Errors
+/// `src` not 1 plane, or `dst` not a band of it starting at `y0`.
 pub fn median3_rows(src: &View<'_, f32>, dst: &mut ViewMut<'_, f32>, y0: usize) -> Result<()> {
     let s = src.shape();
     check_shape("noise median input", Shape::new(1, s.width, s.height), s)?;

@@ -39,6 +39,11 @@ pub fn sure_scratch_len(width: usize) -> usize {
 ///
 /// `recon` holds 3 planes (f32) of the band's rows; `scratch` at least
 /// [`sure_scratch_len`] words.
+///
+/// # Errors
+/// An instruction set this CPU lacks; candidates empty or outside [0, 1];
+/// `cur` and `next` of other sizes or plane counts than `source` needs;
+/// `recon` not a 3-plane band starting at `y0`; `scratch` too short.
 #[allow(clippy::too_many_arguments)]
 pub fn sure_shrink<S: FloatElement>(
     isa: Isa,
@@ -95,6 +100,12 @@ pub fn sure_levels_scratch_len(levels: usize, width: usize) -> usize {
 /// [`SureSource::Single`]; planes past those are ignored) and every later
 /// one a level's output (6 or 5 planes), 2 to `MAX_SURE_LEVELS + 1` of them.
 /// `scratch` holds at least [`sure_levels_scratch_len`] words.
+///
+/// # Errors
+/// An instruction set this CPU lacks; candidates empty or outside [0, 1];
+/// fewer than 2 or more than `MAX_SURE_LEVELS + 1` images, or images of
+/// other sizes or too few planes; `out` not a 3-plane band starting at
+/// `y0`; `scratch` too short.
 pub fn sure_shrink_levels<S: FloatElement>(
     isa: Isa,
     source: SureSource,

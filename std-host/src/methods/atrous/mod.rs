@@ -76,6 +76,9 @@ pub const PHI_SINGLE: f32 = 2048.0;
 /// variance over this: 4 lifted the dim 1-spp corpus scene by 9 dB and
 /// moved the others by under 0.5 dB either way (docs/quality.md).
 pub const NOISE_FLOOR_DIV: f32 = 4.0;
+/// The noise floor's median is taken on every 4th pixel in each direction
+/// (frames at least 32 pixels on a side).
+pub const FLOOR_STRIDE: usize = 4;
 /// SURE's noise term with the second estimate is multiplied by this. The
 /// risk is estimated over a 5x5 window of heavy-tailed Monte Carlo noise, so
 /// it is itself noisy, and taking the candidate of least estimated risk
@@ -338,14 +341,13 @@ impl<P: HostPrecision> Atrous<P> {
         let (pa, pb, demod_by) = if self.clamp > 0.0 {
             let k = self.clamp;
             let (ca, rest) = bf.clamp.split_at_mut(3 * n);
-            let (cb, rest) = rest.split_at_mut(if b.is_some() { 3 * n } else { 0 });
-            let (lum, fac) = rest.split_at_mut(n);
+            let (cb, scratch) = rest.split_at_mut(if b.is_some() { 3 * n } else { 0 });
             t.time("firefly clamp", || {
                 demodulate(ctx, a, albedo, ca);
-                firefly_clamp(ctx, ca, albedo, lum, fac, w, h, k);
+                firefly_clamp(ctx, ca, albedo, scratch, w, h, k);
                 if let Some(b) = b {
                     demodulate(ctx, b, albedo, cb);
-                    firefly_clamp(ctx, cb, albedo, lum, fac, w, h, k);
+                    firefly_clamp(ctx, cb, albedo, scratch, w, h, k);
                 }
             });
             (&*ca, b.map(|_| &*cb), None)
@@ -518,26 +520,33 @@ fn median3(ctx: &mut Ctx, v: &[f32], w: usize, h: usize, out: &mut [f32]) -> Res
 }
 
 /// Planes the firefly clamp keeps (demodulated `A`, `B` with a pair, the
-/// luminance and the factor), 0 when it is off.
+/// luminance, the factor and two planes of row sums), 0 when it is off.
 fn clamp_planes(k: f32, pair: bool) -> usize {
     if k > 0.0 {
-        3 + 3 * usize::from(pair) + 2
+        3 + 3 * usize::from(pair) + 4
     } else {
         0
     }
 }
 
-/// The single estimate's noise floor: the median over the frame of the 5x5
-/// sample variance of `y` (3 planes, mean over the channels), over
-/// [`NOISE_FLOOR_DIV`]. `tmp` (`w h` floats) is overwritten. The median of
+/// The noise floor: the median over the frame (on a grid of every
+/// [`FLOOR_STRIDE`]-th pixel) of the 5x5 sample variance of `y` (3 planes,
+/// mean over the channels), over [`NOISE_FLOOR_DIV`]. `tmp` (`w h` floats) is overwritten. The median of
 /// windowed variances is blind to edges (a minority of windows) but, unlike
 /// the median-based local estimate, sees sparse bright samples.
 fn noise_floor(ctx: &Ctx, y: &[f32], w: usize, h: usize, tmp: &mut [f32]) -> f32 {
     let n = w * h;
-    ctx.pool.planes(vec![&mut *tmp], w * 16, |s, runs| {
+    // On a grid of every FLOOR_STRIDE-th pixel in each direction: a median
+    // over the frame needs no more.
+    let st = if w.min(h) >= 8 * FLOOR_STRIDE { FLOOR_STRIDE } else { 1 };
+    let (gw, gh) = (w.div_ceil(st), h.div_ceil(st));
+    let m = gw * gh;
+    let tmp = &mut tmp[..m];
+    ctx.pool.planes(vec![&mut *tmp], gw * 16, |s, runs| {
         for (j, o) in runs[0].iter_mut().enumerate() {
-            let i = s + j;
-            let (py, px) = (i / w, i % w);
+            let g = s + j;
+            let (py, px) = ((g / gw) * st + st / 2, (g % gw) * st + st / 2);
+            let (py, px) = (py.min(h - 1), px.min(w - 1));
             let mut acc = 0.0f64;
             for c in 0..3 {
                 let (mut cnt, mut s1, mut s2) = (0.0f64, 0.0f64, 0.0f64);
@@ -555,10 +564,10 @@ fn noise_floor(ctx: &Ctx, y: &[f32], w: usize, h: usize, tmp: &mut [f32]) -> f32
             *o = (acc / 3.0) as f32;
         }
     });
-    if n == 0 {
+    if m == 0 {
         return 0.0;
     }
-    let mid = n / 2;
+    let mid = m / 2;
     let (_, m, _) = tmp.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
     let m = *m;
     if m.is_finite() {

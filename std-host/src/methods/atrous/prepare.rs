@@ -157,19 +157,26 @@ pub(super) fn demod_factor(al: &[f32], n: usize, c: usize, i: usize) -> f32 {
 /// `m` and `s` the mean and standard deviation of its 5x5 neighbours (the
 /// centre left out, the window clipped at the border), is scaled by `T / L`
 /// (its colour kept). Emitters ([`crate::methods::EMITTER_ALBEDO`]) are
-/// left alone (they are passed through to the output). `lum` and `fac` are `w h` floats of scratch.
-#[allow(clippy::too_many_arguments)]
+/// left alone (they are passed through to the output). `scratch` holds 4
+/// planes of `w h` floats: the luminance, the factor and the two row sums
+/// of the separable window sums.
 pub(super) fn firefly_clamp(
     ctx: &Ctx,
     img: &mut [f32],
     albedo: Option<&[f32]>,
-    lum: &mut [f32],
-    fac: &mut [f32],
+    scratch: &mut [f32],
     w: usize,
     h: usize,
     k: f32,
 ) {
     let n = w * h;
+    if n == 0 {
+        return;
+    }
+    let (lum, rest) = scratch.split_at_mut(n);
+    let (fac, rest) = rest.split_at_mut(n);
+    let (rs1, rest) = rest.split_at_mut(n);
+    let rs2 = &mut rest[..n];
     {
         let src = &*img;
         ctx.pool.planes(vec![&mut *lum], RUN, |s, runs| {
@@ -180,8 +187,27 @@ pub(super) fn firefly_clamp(
         });
     }
     {
+        // Row sums of L and L^2 over the 5 columns around each pixel.
         let lum = &*lum;
-        // Whole rows per job, so a job's window sums start from its row.
+        ctx.pool.planes(vec![&mut *rs1, &mut *rs2], w * 16, |s, runs| {
+            let (r1, r2) = runs.split_at_mut(1);
+            let (r1, r2) = (&mut *r1[0], &mut *r2[0]);
+            for (row, (o1, o2)) in r1.chunks_mut(w).zip(r2.chunks_mut(w)).enumerate() {
+                let l = &lum[s + row * w..s + row * w + w];
+                for x in 0..w {
+                    let (mut a, mut b) = (0.0f64, 0.0f64);
+                    for &v in &l[x.saturating_sub(2)..(x + 3).min(w)] {
+                        a += v as f64;
+                        b += v as f64 * v as f64;
+                    }
+                    o1[x] = a as f32;
+                    o2[x] = b as f32;
+                }
+            }
+        });
+    }
+    {
+        let (lum, rs1, rs2) = (&*lum, &*rs1, &*rs2);
         ctx.pool.planes(vec![&mut *fac], w * 16, |s, runs| {
             for (j, f) in runs[0].iter_mut().enumerate() {
                 let i = s + j;
@@ -191,21 +217,19 @@ pub(super) fn firefly_clamp(
                 if li.is_nan() || li <= 0.0 || albedo.is_some_and(|a| is_emitter(a, n, i)) {
                     continue;
                 }
-                let (mut cnt, mut s1, mut s2) = (0.0f64, 0.0f64, 0.0f64);
-                for yy in y.saturating_sub(2)..(y + 3).min(h) {
-                    for xx in x.saturating_sub(2)..(x + 3).min(w) {
-                        if yy == y && xx == x {
-                            continue;
-                        }
-                        let v = lum[yy * w + xx] as f64;
-                        cnt += 1.0;
-                        s1 += v;
-                        s2 += v * v;
-                    }
+                let (y0, y1) = (y.saturating_sub(2), (y + 3).min(h));
+                let cols = ((x + 3).min(w) - x.saturating_sub(2)) as f64;
+                let (mut s1, mut s2) = (0.0f64, 0.0f64);
+                for yy in y0..y1 {
+                    s1 += rs1[yy * w + x] as f64;
+                    s2 += rs2[yy * w + x] as f64;
                 }
-                if cnt == 0.0 {
+                // The centre left out.
+                let cnt = cols * (y1 - y0) as f64 - 1.0;
+                if cnt < 1.0 {
                     continue;
                 }
+                let (s1, s2) = (s1 - li as f64, s2 - li as f64 * li as f64);
                 let m = s1 / cnt;
                 let sd = (s2 / cnt - m * m).max(0.0).sqrt();
                 let t = m + k as f64 * sd;
