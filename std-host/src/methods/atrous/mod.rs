@@ -28,6 +28,8 @@
 //! and its fireflies clamped ([`FIREFLY_K`], `prepare::firefly_clamp`). The
 //! colour gate's multiple defaults to [`PHI_PAIR`] or [`PHI_SINGLE`], and the
 //! geometry adds a world-space distance term ([`DISTANCE_TOLERANCE`]).
+//! Pixels without albedo (emitters, [`crate::methods::EMITTER_ALBEDO`]) are
+//! demodulated and remodulated by 1.
 //!
 //! The SURE of linear shrinkage is summed over a 5x5 window and the three
 //! channels; [`mcdenoise_core::atrous::sure_shrink_levels`] picks per pixel
@@ -484,15 +486,10 @@ impl<P: HostPrecision> Atrous<P> {
                         band,
                     )
                 })?;
-                // Emitters were demodulated by 1 and are passed through: the
-                // input (the mean of the pair) is their output.
+                // Emitters were demodulated by 1: remodulated by 1.
                 for i in (0..n).filter(|&i| prepare::is_emitter(al, n, i)) {
                     for c in 0..3 {
-                        let k = c * n + i;
-                        out[k] = match b {
-                            Some(b) => 0.5 * (a[k] + b[k]),
-                            None => a[k],
-                        };
+                        out[c * n + i] = base[c * n + i];
                     }
                 }
                 Ok(())

@@ -157,7 +157,7 @@ pub(super) fn demod_factor(al: &[f32], n: usize, c: usize, i: usize) -> f32 {
 /// `m` and `s` the mean and standard deviation of its 5x5 neighbours (the
 /// centre left out, the window clipped at the border), is scaled by `T / L`
 /// (its colour kept). Emitters ([`crate::methods::EMITTER_ALBEDO`]) are
-/// left alone (they are passed through to the output). `scratch` holds 4
+/// left alone (they are filtered as radiance). `scratch` holds 4
 /// planes of `w h` floats: the luminance, the factor and the two row sums
 /// of the separable window sums.
 pub(super) fn firefly_clamp(
