@@ -17,7 +17,7 @@ $MCDENOISE).
 import argparse
 import json
 import os
-import subprocess
+import shutil
 import sys
 import tempfile
 
@@ -27,6 +27,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
 import plain_atrous as pa  # noqa: E402
+from eval_learned import mcd, run  # noqa: E402
 from exrio import read_exr, stack  # noqa: E402
 
 C = os.path.join(ROOT, 'tests', 'fixtures', 'corpus')
@@ -37,17 +38,6 @@ SCENES = [('cornell 4 spp', 'cornell_4spp', 'cornell_ref'), ('cornell 16 spp', '
 PHIS = [16, 64, 256, 1024, 2048, 8192]
 PLAIN_SIGMA_C = [0.25, 1, 4, 8]
 PLAIN_SIGMA_X = [0.02, 0.05]
-
-
-def mcd():
-    return os.environ.get('MCDENOISE', os.path.join(ROOT, 'target', 'release', 'mcdenoise'))
-
-
-def run(cmd):
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    if r.returncode != 0:
-        raise RuntimeError('%s failed: %s' % (' '.join(cmd), r.stderr.strip()))
-    return r.stdout
 
 
 def strip_b(src_dir, dst_dir, mean_dir):
@@ -70,7 +60,7 @@ def strip_b(src_dir, dst_dir, mean_dir):
 
 def denoise(inp, ref, tmp, args):
     out = os.path.join(tmp, 'out')
-    subprocess.run(['rm', '-rf', out])
+    shutil.rmtree(out, ignore_errors=True)
     run([mcd(), 'denoise', '--quiet', '--threads', '2'] + args + [inp, '-o', out])
     j = json.loads(run([mcd(), 'score', '--reference', ref, out, '--json']).splitlines()[-1])
     return j['mean']['psnr'], j['files'][-1]['psnr']
