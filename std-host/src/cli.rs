@@ -280,9 +280,9 @@ struct SettingsCli {
     #[arg(long, value_name = "F", value_parser = phi_color)]
     phi_color: Option<f32>,
     /// À-trous: clamp pixels brighter than their 5x5 neighbours' mean + K standard deviations before
-    /// filtering (0: off)
-    #[arg(long, value_name = "K", default_value = "6", value_parser = firefly)]
-    firefly_clamp: f32,
+    /// filtering (0: off) [default: 16 with B.*, 6 with one estimate]
+    #[arg(long, value_name = "K", value_parser = firefly)]
+    firefly_clamp: Option<f32>,
     /// WSKP: ImportanceNet layers (3 or 6)
     #[arg(long, value_name = "N", default_value = "6", value_parser = layers, help_heading = "Learned methods")]
     layers: usize,

@@ -274,6 +274,20 @@ impl<T: bytemuck::Pod + Default> Planes<T> {
         P::encode(src, &mut p.data, frac);
         p
     }
+    /// Encodes f32 planes with the given fixed-point format (ignored by the
+    /// float precisions), saturating what it cannot hold.
+    pub fn encode_frac<P: HostPrecision<Store = T>>(
+        channels: usize,
+        width: usize,
+        height: usize,
+        src: &[f32],
+        frac: i8,
+    ) -> Self {
+        let frac = if P::NAME == "fixed" { frac } else { 0 };
+        let mut p = Planes::new(channels, width, height).with_frac(frac);
+        P::encode(src, &mut p.data, frac);
+        p
+    }
     /// Decodes to f32.
     pub fn decode<P: HostPrecision<Store = T>>(&self) -> Vec<f32> {
         let mut out = vec![0.0; self.data.len()];

@@ -167,8 +167,8 @@ pub struct Settings {
     /// the second estimate, 2048 without).
     pub phi_color: Option<f32>,
     /// À-trous: the firefly clamp's threshold in local standard deviations
-    /// (0: off; default 6).
-    pub firefly_clamp: f32,
+    /// (0: off; `None`: the default, 16 with the second estimate, 6 without).
+    pub firefly_clamp: Option<f32>,
     /// Learned methods: network layers (WSKP: 3 or 6).
     pub layers: usize,
     /// Learned methods: a weights file instead of the bundled weights.
@@ -190,7 +190,7 @@ impl Default for Settings {
             threads: 1,
             precision: PrecisionKind::F32,
             phi_color: None,
-            firefly_clamp: atrous::FIREFLY_K,
+            firefly_clamp: None,
             layers: 6,
             weights: None,
             refine: true,

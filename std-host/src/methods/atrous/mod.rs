@@ -5,7 +5,9 @@
 //! mean `M = (A + B) / 2` of the two estimates (so they see the same samples),
 //! and the noise comes from the frame itself:
 //! - noise variance of the input per pixel: `v = |A - B|^2 / 4` (the variance
-//!   of `M`, unbiased for independent `A`, `B`), mean over channels, 3x3 box;
+//!   of `M`, unbiased for independent `A`, `B`), mean over channels, 3x3
+//!   box, capped at [`NOISE_CAP`] times its 3x3 median and floored at the
+//!   noise floor (below);
 //! - `sure-atrous` filters `M` and `H = (A - B) / 2` with the *same* weights
 //!   (guided by `M`, so the levels of `M` are exactly the baseline's); the
 //!   detail of `M` is `D_M` and its noise variance `|D_H|^2` (which equals
@@ -64,8 +66,10 @@ pub const NOISE_RADIUS: usize = 1;
 /// Tangent-plane tolerance as a fraction of the scene scale.
 pub const PLANE_TOLERANCE: f32 = 0.005;
 /// The distance term's scale (`AtrousParams::sigma_distance`) as a fraction
-/// of the scene scale: on the test corpus 0.03 beat 0.02 and 0.05 overall
-/// and gained 2 to 5 dB over no distance term (docs/quality.md).
+/// of the scene scale, at the base noise level: on the test corpus 0.03
+/// beat 0.02 and 0.05 overall and gained 2 to 5 dB over no distance term
+/// (docs/quality.md). Each frame multiplies it by [`distance_scale`] of its
+/// noise level.
 pub const DISTANCE_TOLERANCE: f32 = 0.017;
 /// Default `phi_color` with the second estimate `B.*`.
 pub const PHI_PAIR: f32 = 64.0;
@@ -78,6 +82,26 @@ pub const PHI_SINGLE: f32 = 2048.0;
 /// variance over this: 4 lifted the dim 1-spp corpus scene by 9 dB and
 /// moved the others by under 0.5 dB either way (docs/quality.md).
 pub const NOISE_FLOOR_DIV: f32 = 4.0;
+/// With the pair, a pixel's noise variance (the 3x3 box average of
+/// `|A - B|^2 / 4`) is capped at this many times the 3x3 median of the
+/// same (or the noise floor, if larger). On the corpus, 256 gained 0.3 to
+/// 1.4 dB on six scenes, lost 0.56 dB on the 16-spp box (whose pixels
+/// straddling the light's edge are then filtered towards the ceiling) and
+/// brought fixed point on the 4-spp box from 39 to 47 dB of f32: f32 had
+/// relied on variances above what the fixed-point guide holds
+/// (docs/quality.md).
+pub const NOISE_CAP: f32 = 256.0;
+/// The relative noise ([`distance_scale`]) at which the distance term has
+/// its base scale, with one estimate. The corpus's 16-spp Cornell box is
+/// near it; its 1-spp rooms (0.15 to 6) get 1.2 to 3 times the distance,
+/// its 64-spp scenes 0.75 (docs/quality.md).
+pub const DISTANCE_REL_SINGLE: f32 = 0.08;
+/// The same with the pair (whose mean has half the variance of one
+/// estimate, so half the relative noise for the same samples per pixel).
+pub const DISTANCE_REL_PAIR: f32 = 0.04;
+/// In fixed point the noise floor is held with at least this many steps
+/// of the noise guide's format ([`noise_frac`]).
+pub const NOISE_FLOOR_LSB: f32 = 64.0;
 /// The noise floor's median is taken on every 4th pixel in each direction
 /// (frames at least 32 pixels on a side).
 pub const FLOOR_STRIDE: usize = 4;
@@ -86,15 +110,23 @@ pub const FLOOR_STRIDE: usize = 4;
 /// it is itself noisy, and taking the candidate of least estimated risk
 /// favours the ones whose noise was underestimated: it keeps noise. A
 /// safety factor moves the choice towards `beta = 0` (plain à-trous); on the
-/// corpus 1 lost up to 1.4 dB to `atrous`, 4 up to 0.05 dB, 16 none
-/// (docs/quality.md).
-pub const SURE_SAFETY_PAIR: f32 = 16.0;
+/// corpus 1 lost up to 1.4 dB to `atrous`, 4 up to 0.05 dB; once the
+/// distance term widened with the noise, 16 lost 0.07 dB on the dim room,
+/// 64 at most 0.01 (docs/quality.md).
+pub const SURE_SAFETY_PAIR: f32 = 64.0;
 /// The same for one estimate, whose propagated variance comes from the
-/// local estimate (2 to 5 times below the variance, see [`PHI_SINGLE`]).
-pub const SURE_SAFETY_SINGLE: f32 = 64.0;
-/// Default threshold of the firefly clamp, in local standard deviations
-/// (`--firefly-clamp`).
+/// local estimate (2 to 5 times below the variance, see [`PHI_SINGLE`]):
+/// 64 lost 0.12 dB to `atrous` on the dim room, 256 none.
+pub const SURE_SAFETY_SINGLE: f32 = 256.0;
+/// Default threshold of the firefly clamp with one estimate, in local
+/// standard deviations (`--firefly-clamp`).
 pub const FIREFLY_K: f32 = 6.0;
+/// The same with the pair. Its noise estimate and the distance term's
+/// noise-driven width already spread a firefly thin, and clamping takes
+/// energy: on the dim 1+1-spp room 6 cost 0.8 dB against no clamp, 16 gains
+/// 0.1 there and 1.0 and 0.4 dB on the glossy and HDR rooms
+/// (docs/quality.md).
+pub const FIREFLY_K_PAIR: f32 = 16.0;
 
 /// The à-trous methods.
 pub struct Atrous<P: HostPrecision> {
@@ -135,7 +167,8 @@ impl<P: HostPrecision> Atrous<P> {
         // c0, noise_raw, noise, zeros, the level outputs, out.
         let kept = 4 * nsrc + 3 * 4 + if sure { levels * nout * s } else { 2 * nout * s } + 12;
         // The firefly clamp's planes.
-        let kept = kept + 4 * clamp_planes(settings.firefly_clamp, pair) as u64;
+        let k = settings.firefly_clamp.unwrap_or(if pair { FIREFLY_K_PAIR } else { FIREFLY_K });
+        let kept = kept + 4 * clamp_planes(k, pair) as u64;
         let guides = if f32s { 0 } else { s + 3 * s * normal + 3 * s * position + s * depth + nsrc * s };
         let mut l = Ledger::default();
         l.alloc(kept);
@@ -358,25 +391,41 @@ impl<P: HostPrecision> Atrous<P> {
         };
         t.time("prepare", || prepare(ctx, n, pa, pb, demod_by, sure_pair, &mut bf.c0, &mut bf.noise_raw));
         // Noise variance of the filtered input, per pixel.
+        let mut stats = NoiseStats::default();
         t.time("noise estimate", || -> Result<()> {
+            // The floor: where most samples are 0 (a dim region at 1 spp)
+            // the median-based estimate is 0 and would stop all smoothing;
+            // with a pair, a variance of 0 (or below fixed point's
+            // resolution) would do the same. (`bf.out` is free until the
+            // reconstruction: scratch here.)
+            stats = noise_floor(ctx, &bf.c0[..3 * n], w, h, &mut bf.out[..2 * n]);
+            let floor = stats.floor;
             if b.is_some() {
                 box_average(ctx, &bf.noise_raw, &bf.zeros, 1, w, h, NOISE_RADIUS, &mut bf.noise)?;
+                // The cap: a pixel's box average is at most NOISE_CAP times
+                // its 3x3 median (or the floor), so that one neighbour's
+                // huge variance (a pixel straddling a light's edge,
+                // demodulated by a small albedo) does not open the pixel's
+                // colour gate to that neighbour.
+                let med = &mut bf.out[..n];
+                median3(ctx, &bf.noise_raw, w, h, med)?;
+                let med = &*med;
+                ctx.pool.planes(vec![&mut bf.noise[..]], 1 << 14, |s, runs| {
+                    for (v, &m) in runs[0].iter_mut().zip(&med[s..]) {
+                        *v = v.min(NOISE_CAP * m.max(floor)).max(floor);
+                    }
+                });
             } else {
                 local_noise(ctx, &bf.c0[..3 * n], w, h, &mut bf.noise_raw)?;
                 // A 3x3 median, not a box: where the local estimate mistook an
                 // edge for noise, those pixels are a minority of the window.
                 median3(ctx, &bf.noise_raw, w, h, &mut bf.noise)?;
+                ctx.pool.planes(vec![&mut bf.noise[..]], 1 << 14, |_, runs| {
+                    for v in runs[0].iter_mut() {
+                        *v = v.max(floor);
+                    }
+                });
             }
-            // The floor: where most samples are 0 (a dim region at 1 spp)
-            // the median-based estimate is 0 and would stop all smoothing;
-            // with a pair, a variance of 0 (or below fixed point's
-            // resolution) would do the same.
-            let floor = noise_floor(ctx, &bf.c0[..3 * n], w, h, &mut bf.noise_raw);
-            ctx.pool.planes(vec![&mut bf.noise[..]], 1 << 14, |_, runs| {
-                for v in runs[0].iter_mut() {
-                    *v = v.max(floor);
-                }
-            });
             Ok(())
         })?;
         if sure_single {
@@ -389,7 +438,10 @@ impl<P: HostPrecision> Atrous<P> {
         // frame's own f32 data when that is the precision).
         let (noise_g, normal_g, position_g, depth_g, c0) = t.time("guides", || {
             (
-                Held::new::<P>(&bf.noise, 1, w, h, Kind::Image),
+                match P::borrow_f32(&bf.noise) {
+                    Some(s) => Held::Borrowed(s),
+                    None => Held::Owned(Planes::encode_frac::<P>(1, w, h, &bf.noise, noise_frac::<P>(&bf.noise, stats.floor))),
+                },
                 normal.map(|d| Held::new::<P>(d, 3, w, h, Kind::Unit)),
                 position.map(|d| Held::new::<P>(d, 3, w, h, Kind::Plain)),
                 depth.map(|d| Held::new::<P>(d, 1, w, h, Kind::Plain)),
@@ -402,7 +454,10 @@ impl<P: HostPrecision> Atrous<P> {
             position: position_g.as_ref().map(|p| p.view(3, w, h)),
             depth: depth_g.as_ref().map(|p| p.view(1, w, h)),
         };
-        let (isa, params) = (ctx.isa, self.params);
+        let (isa, mut params) = (ctx.isa, self.params);
+        // The distance term widens with the frame's noise level.
+        let r0 = if self.pair { DISTANCE_REL_PAIR } else { DISTANCE_REL_SINGLE };
+        params.sigma_distance *= distance_scale(stats.relative, r0);
         let source = if sure_pair { SureSource::Pair } else { SureSource::Single };
         let frac = c0.frac();
         bf.ping.frac = frac;
@@ -503,6 +558,22 @@ impl<P: HostPrecision> Atrous<P> {
     }
 }
 
+/// The noise guide's fixed-point format: the image policy's (its 99.9th
+/// percentile representable), or finer where that leaves the noise floor
+/// fewer than [`NOISE_FLOOR_LSB`] steps. The colour gate divides by the
+/// variance, so it needs relative precision at the low end; at 1 spp in a
+/// scene with a visible light the variance spans 7 decades, more than i16
+/// holds, and the bright tail saturates instead (a gate a little narrower
+/// on the noisiest pixels, against one that closes on every quiet pixel).
+fn noise_frac<P: HostPrecision>(noise: &[f32], floor: f32) -> i8 {
+    let image = P::choose_frac(noise, Kind::Image);
+    if P::NAME != "fixed" || !(floor > 0.0 && floor.is_finite()) {
+        return image;
+    }
+    let need = (NOISE_FLOOR_LSB / floor).log2().ceil().clamp(-8.0, 14.0) as i8;
+    image.max(need)
+}
+
 /// The local noise variance of the single estimate `y` (3 planes) into `v`
 /// (core's [`noise::local_noise_rows`]), in bands.
 fn local_noise(ctx: &mut Ctx, y: &[f32], w: usize, h: usize, v: &mut [f32]) -> Result<()> {
@@ -526,25 +597,44 @@ fn clamp_planes(k: f32, pair: bool) -> usize {
     }
 }
 
+/// What the frame's noise says: [`noise_floor`]'s floor and the median
+/// relative variance.
+#[derive(Clone, Copy, Debug, Default)]
+struct NoiseStats {
+    /// The noise floor.
+    floor: f32,
+    /// The median over the grid of the 5x5 sample variance over the squared
+    /// 5x5 mean (both over the channels): about 1/spp times the samples'
+    /// relative variance, a scene's noise level independent of its exposure.
+    relative: f32,
+}
+
 /// The noise floor: the median over the frame (on a grid of every
 /// [`FLOOR_STRIDE`]-th pixel) of the 5x5 sample variance of `y` (3 planes,
-/// mean over the channels), over [`NOISE_FLOOR_DIV`]. `tmp` (`w h` floats) is overwritten. The median of
-/// windowed variances is blind to edges (a minority of windows) but, unlike
-/// the median-based local estimate, sees sparse bright samples.
-fn noise_floor(ctx: &Ctx, y: &[f32], w: usize, h: usize, tmp: &mut [f32]) -> f32 {
+/// mean over the channels), over [`NOISE_FLOOR_DIV`]; and the median of
+/// that variance relative to the squared mean ([`NoiseStats`]). `tmp` (`2 w
+/// h` floats) is overwritten. The median of windowed variances is blind to
+/// edges (a minority of windows) but, unlike the median-based local
+/// estimate, sees sparse bright samples.
+fn noise_floor(ctx: &Ctx, y: &[f32], w: usize, h: usize, tmp: &mut [f32]) -> NoiseStats {
     let n = w * h;
     // On a grid of every FLOOR_STRIDE-th pixel in each direction: a median
     // over the frame needs no more.
     let st = if w.min(h) >= 8 * FLOOR_STRIDE { FLOOR_STRIDE } else { 1 };
     let (gw, gh) = (w.div_ceil(st), h.div_ceil(st));
     let m = gw * gh;
-    let tmp = &mut tmp[..m];
-    ctx.pool.planes(vec![&mut *tmp], gw * 16, |s, runs| {
-        for (j, o) in runs[0].iter_mut().enumerate() {
+    if m == 0 {
+        return NoiseStats::default();
+    }
+    let (var, rest) = tmp.split_at_mut(m);
+    let rel = &mut rest[..m];
+    ctx.pool.planes(vec![&mut *var, &mut *rel], gw * 16, |s, runs| {
+        let (vr, rl) = runs.split_at_mut(1);
+        for (j, (o, r)) in vr[0].iter_mut().zip(rl[0].iter_mut()).enumerate() {
             let g = s + j;
             let (py, px) = ((g / gw) * st + st / 2, (g % gw) * st + st / 2);
             let (py, px) = (py.min(h - 1), px.min(w - 1));
-            let mut acc = 0.0f64;
+            let (mut acc, mut mean) = (0.0f64, 0.0f64);
             for c in 0..3 {
                 let (mut cnt, mut s1, mut s2) = (0.0f64, 0.0f64, 0.0f64);
                 for yy in py.saturating_sub(2)..(py + 3).min(h) {
@@ -557,19 +647,32 @@ fn noise_floor(ctx: &Ctx, y: &[f32], w: usize, h: usize, tmp: &mut [f32]) -> f32
                 }
                 let m = s1 / cnt;
                 acc += (s2 / cnt - m * m).max(0.0);
+                mean += m;
             }
-            *o = (acc / 3.0) as f32;
+            let (v, mean) = (acc / 3.0, mean / 3.0);
+            *o = v as f32;
+            *r = if v > 0.0 { (v / (mean * mean).max(1e-30)) as f32 } else { 0.0 };
         }
     });
-    if m == 0 {
-        return 0.0;
+    let median = |a: &mut [f32]| {
+        let mid = a.len() / 2;
+        let v = *a.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1;
+        if v.is_finite() {
+            v
+        } else {
+            0.0
+        }
+    };
+    NoiseStats { floor: median(var) / NOISE_FLOOR_DIV, relative: median(rel) }
+}
+
+/// The distance term's multiple for a frame of relative noise `rel`
+/// ([`NoiseStats::relative`]): `(rel / r0)^0.3` within [0.75, 3], with
+/// `r0` [`DISTANCE_REL_PAIR`] or [`DISTANCE_REL_SINGLE`]. Noisier frames
+/// want a wider support (docs/quality.md).
+fn distance_scale(rel: f32, r0: f32) -> f32 {
+    if !(rel > 0.0 && rel.is_finite()) {
+        return 1.0;
     }
-    let mid = m / 2;
-    let (_, m, _) = tmp.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
-    let m = *m;
-    if m.is_finite() {
-        m / NOISE_FLOOR_DIV
-    } else {
-        0.0
-    }
+    (rel / r0).powf(0.3).clamp(0.75, 3.0)
 }

@@ -6,7 +6,7 @@ use std::marker::PhantomData;
 
 use mcdenoise_core::atrous::AtrousParams;
 
-use super::{Atrous, DISTANCE_TOLERANCE, PHI_PAIR, PHI_SINGLE, PLANE_TOLERANCE};
+use super::{Atrous, DISTANCE_TOLERANCE, FIREFLY_K, FIREFLY_K_PAIR, PHI_PAIR, PHI_SINGLE, PLANE_TOLERANCE};
 use crate::error::Result;
 use crate::frame::{Buffer, Frame};
 use crate::methods::{scene_scale, Plan, Settings};
@@ -27,7 +27,7 @@ impl<P: HostPrecision> Atrous<P> {
         } else {
             plan.skipped.push(("demodulation", "no albedo".into()));
         }
-        let clamp = settings.firefly_clamp;
+        let clamp = settings.firefly_clamp.unwrap_or(if pair { FIREFLY_K_PAIR } else { FIREFLY_K });
         if clamp > 0.0 {
             plan.built.push("firefly clamp");
         } else {

@@ -6,8 +6,8 @@ use super::{ALBEDO_EPS, LEVELS, SURE_SAFETY_PAIR};
 
 /// `H = (A - B) / 2` times the square root of the pair's SURE safety factor
 /// (so its detail energy, SURE's noise term, comes out times the factor).
-const SURE_H_SCALE: f32 = 0.5 * 4.0;
-const _: () = assert!(SURE_SAFETY_PAIR == 16.0); // SURE_H_SCALE = 0.5 sqrt(16)
+const SURE_H_SCALE: f32 = 0.5 * 8.0;
+const _: () = assert!(SURE_SAFETY_PAIR == 64.0); // SURE_H_SCALE = 0.5 sqrt(64)
 use crate::aligned::Aligned;
 use crate::methods::Ctx;
 use crate::precision::Planes;
@@ -152,12 +152,17 @@ pub(super) fn demod_factor(al: &[f32], n: usize, c: usize, i: usize) -> f32 {
     }
 }
 
-/// The firefly clamp, in place on the 3 planes of `img` (`w x h`): a pixel
-/// whose luminance (mean of the channels) `L` exceeds `T = m + k s`, with
+/// The firefly clamp, in place on the 3 demodulated planes of `img` (`w x
+/// h`): a pixel whose luminance (mean of the channels, of the radiance:
+/// remodulated when there is albedo) `L` exceeds `T = m + k s`, with
 /// `m` and `s` the mean and standard deviation of its 5x5 neighbours (the
 /// centre left out, the window clipped at the border), is scaled by `T / L`
 /// (its colour kept). Emitters ([`crate::methods::EMITTER_ALBEDO`]) are
-/// left alone (they are filtered as radiance). `scratch` holds 4
+/// left alone (they are filtered as radiance). The test is on radiance,
+/// not on the demodulated values, because a pixel straddling a light's
+/// edge has a small albedo and so a demodulated value far above its
+/// neighbours' while its radiance is not (clamping it darkened the light's
+/// outline). `scratch` holds 4
 /// planes of `w h` floats: the luminance, the factor and the two row sums
 /// of the separable window sums.
 pub(super) fn firefly_clamp(
@@ -182,7 +187,15 @@ pub(super) fn firefly_clamp(
         ctx.pool.planes(vec![&mut *lum], RUN, |s, runs| {
             for (j, l) in runs[0].iter_mut().enumerate() {
                 let i = s + j;
-                *l = (src[i] + src[n + i] + src[2 * n + i]) / 3.0;
+                *l = match albedo.filter(|_| std::env::var_os("MCD_DEMODCLAMP").is_none()) {
+                    Some(al) => {
+                        (src[i] * demod_factor(al, n, 0, i)
+                            + src[n + i] * demod_factor(al, n, 1, i)
+                            + src[2 * n + i] * demod_factor(al, n, 2, i))
+                            / 3.0
+                    }
+                    None => (src[i] + src[n + i] + src[2 * n + i]) / 3.0,
+                };
             }
         });
     }
