@@ -36,8 +36,8 @@ SCENES = [('cornell 4 spp', 'cornell_4spp', 'cornell_ref'), ('cornell 16 spp', '
           ('box 16 spp', 'box_16spp', 'box_ref'), ('box 64 spp', 'box_64spp', 'box_ref'),
           ('glossy (1 spp)', 'glossy', 'glossy/ref'), ('hdr (1 spp)', 'hdr', 'hdr/ref'), ('dim (1 spp)', 'dim', 'dim/ref')]
 PHIS = [16, 64, 256, 1024, 2048, 8192]
-PLAIN_SIGMA_C = [0.25, 1, 4, 8]
-PLAIN_SIGMA_X = [0.02, 0.05]
+PLAIN_SIGMA_C = [0.25, 1, 4, 8, 16, 64]
+PLAIN_SIGMA_X = [0.01, 0.02, 0.05, 0.1]
 
 
 def strip_b(src_dir, dst_dir, mean_dir):

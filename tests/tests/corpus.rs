@@ -200,8 +200,7 @@ fn sure_atrous_is_at_least_as_good_as_atrous() {
 }
 
 /// The firefly clamp (on by default) on every scene: it gains on the
-/// scenes with fireflies (glossy, HDR, dim, the box with the bare light,
-/// with the pair) and costs at most 0.15 dB anywhere.
+/// 1-spp rooms and costs at most 0.1 dB anywhere.
 #[test]
 fn firefly_clamp_helps_where_there_are_fireflies() {
     let mut bad = Vec::new();
@@ -211,11 +210,12 @@ fn firefly_clamp_helps_where_there_are_fireflies() {
             let off = psnr_of(display_mse(&s, &run(MethodKind::Atrous, PrecisionKind::F32, &s, Some(0.0)), &s.refs));
             eprintln!("{} pair {pair}: clamp on {on:.3} dB, off {off:.3} dB", s.name);
             // On by default: it must not hurt anywhere, and must help on the
-            // 1-spp rooms, whose fireflies it is for (the dim room with the
-            // pair gains least: +0.1 dB, held to not losing).
+            // 1-spp rooms, whose fireflies it is for (in the dim room it
+            // backs off with the noise level: +0.2 dB with one estimate,
+            // held to not losing with the pair).
             let gain = match s.name {
                 "glossy" | "hdr" => 0.3,
-                "dim" if !pair => 0.3,
+                "dim" if !pair => 0.1,
                 _ => -0.1,
             };
             if on < off + gain {

@@ -78,6 +78,25 @@ pub const PHI_PAIR: f32 = 64.0;
 /// has a long bright tail, it sits 2 to 5 times below the variance, and the
 /// corpus sweep (README) puts the best multiple near 2048.
 pub const PHI_SINGLE: f32 = 2048.0;
+/// Above this relative noise ([`NoiseStats::relative`]) with one estimate,
+/// the default `phi_color` is multiplied by the ratio (up to
+/// [`PHI_MAX_SCALE`]). There most 5x5 windows hold a few bright samples
+/// among zeros (sparse light at 1 spp), and the noise estimates
+/// (median-based with one estimate; capped, with the pair) sit far below the
+/// variance. On the corpus only the dim room is above it (5.4): +1.2 dB
+/// there; the others (up to 0.43) are unchanged (docs/quality.md).
+pub const PHI_REL_SINGLE: f32 = 1.0;
+/// The same with the pair (half the relative noise for the same samples):
+/// the dim room (2.9) gains 2.4 dB.
+pub const PHI_REL_PAIR: f32 = 0.5;
+/// Above this relative noise of the (first) estimate, the firefly clamp's
+/// threshold is multiplied by the ratio: on the corpus's dim room (5.4),
+/// whose light arrives as sparse bright samples, the clamp at its
+/// default threshold cost 0.4 dB with the pair and 0.8 dB with one
+/// estimate once the colour gate widened there ([`PHI_REL_SINGLE`]).
+pub const CLAMP_REL: f32 = 1.0;
+/// The largest multiple of the default `phi_color` the noise level sets.
+pub const PHI_MAX_SCALE: f32 = 16.0;
 /// The single estimate's noise floor is the frame's median 5x5 sample
 /// variance over this: 4 lifted the dim 1-spp corpus scene by 9 dB and
 /// moved the others by under 0.5 dB either way (docs/quality.md).
@@ -139,6 +158,8 @@ pub struct Atrous<P: HostPrecision> {
     use_position: bool,
     use_depth: bool,
     params: AtrousParams,
+    /// `phi_color` is the default (not given by the user).
+    phi_auto: bool,
     /// Firefly clamp threshold (0: off).
     clamp: f32,
     bufs: Option<Bufs<P::Store>>,
@@ -379,6 +400,11 @@ impl<P: HostPrecision> Atrous<P> {
             let (cb, scratch) = rest.split_at_mut(if b.is_some() { 3 * n } else { 0 });
             t.time("firefly clamp", || {
                 demodulate(ctx, a, albedo, ca);
+                // In sparse light (relative noise of one estimate above
+                // CLAMP_REL) the threshold rises with the noise level: the
+                // bright samples are most of the signal there.
+                let rel = noise_floor(ctx, ca, w, h, scratch).relative;
+                let k = k * (rel / CLAMP_REL).clamp(1.0, 1e6);
                 firefly_clamp(ctx, ca, albedo, scratch, w, h, k);
                 if let Some(b) = b {
                     demodulate(ctx, b, albedo, cb);
@@ -428,10 +454,19 @@ impl<P: HostPrecision> Atrous<P> {
             }
             Ok(())
         })?;
+        // Unless the user set it, the colour gate widens with a noise level
+        // above that of 1-spp light, where the noise estimates fall short of
+        // the variance; SURE's noise term (one estimate) by the same factor.
+        let phi_scale = if self.phi_auto {
+            let r1 = if self.pair { PHI_REL_PAIR } else { PHI_REL_SINGLE };
+            (stats.relative / r1).clamp(1.0, PHI_MAX_SCALE)
+        } else {
+            1.0
+        };
         if sure_single {
             bf.c0[3 * n..4 * n].copy_from_slice(&bf.noise);
             for v in &mut bf.c0[3 * n..4 * n] {
-                *v *= SURE_SAFETY_SINGLE;
+                *v *= SURE_SAFETY_SINGLE * phi_scale;
             }
         }
         // The guides and the level-0 images in the storage precision (the
@@ -458,6 +493,7 @@ impl<P: HostPrecision> Atrous<P> {
         // The distance term widens with the frame's noise level.
         let r0 = if self.pair { DISTANCE_REL_PAIR } else { DISTANCE_REL_SINGLE };
         params.sigma_distance *= distance_scale(stats.relative, r0);
+        params.phi_color *= phi_scale;
         let source = if sure_pair { SureSource::Pair } else { SureSource::Single };
         let frac = c0.frac();
         bf.ping.frac = frac;

@@ -69,6 +69,7 @@ impl<P: HostPrecision> Atrous<P> {
             use_position,
             use_depth,
             params,
+            phi_auto: settings.phi_color.is_none(),
             clamp,
             bufs: None,
             _p: PhantomData,
