@@ -8,7 +8,9 @@ and Intel Open Image Denoise.
     python3 tools/eval_learned.py --test /work/data/test --weights DIR -o OUT_DIR
 
 DIR holds wskp6.safetensors, wskp3.safetensors, afn.safetensors and the
-ablation's afn-ta-only.safetensors, afn-1spp-only.safetensors (made by
+ablation's afn-ta-only.safetensors, afn-1spp-only.safetensors, WSKP's
+single-size networks wskp3-k3 .. wskp3-k13.safetensors and their fused
+counterpart wskp3-fused-1500.safetensors (made by
 `mcdenoise train`, commands in docs/training.md) and optionally
 torch_wskp6.safetensors (tools/torch_wskp.py train). OUT_DIR gets
 quality.json (everything), quality.md (the tables) and per-frame PSNR CSVs.
@@ -65,6 +67,12 @@ def methods(weights):
     for v in ('ta-only', '1spp-only'):
         if os.path.exists(w('afn-%s.safetensors' % v)):
             m.append(('afn ' + v, 'mcd', ['--method', 'afn', '--weights', w('afn-%s.safetensors' % v)]))
+    # The WSKP paper's Fig. 9: one window size against the six fused, WSKP-3
+    # at one training budget (tools/train-all.sh wskp3-k3 .. wskp3-k13,
+    # wskp3-fused-1500); the sizes come from the files' metadata.
+    for k in ('fused-1500', 'k3', 'k5', 'k7', 'k9', 'k11', 'k13'):
+        if os.path.exists(w('wskp3-%s.safetensors' % k)):
+            m.append(('wskp3 ' + k, 'mcd', ['--method', 'wskp', '--layers', '3', '--weights', w('wskp3-%s.safetensors' % k)]))
     if os.path.exists(w('torch_wskp6.safetensors')):
         m.append(('pytorch wskp6', 'torch', ['--weights', w('torch_wskp6.safetensors'), '--layers', '6']))
     m.append(('oidn fast', 'oidn', ['--quality', 'fast']))

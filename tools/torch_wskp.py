@@ -528,7 +528,7 @@ def cmd_time(a):
     alb = torch.rand(b, 3, s, s, generator=g) + EPS
     c = torch.rand(b, 3, s, s, generator=g) * 2
     ref = torch.rand(b, 3, s, s, generator=g) * 2
-    for dt in (torch.float64, torch.float32):
+    for dt in ((torch.float32,) if a.train_only else (torch.float64, torch.float32)):
         net = ImportanceNet(6)
         opt = torch.optim.Adam(net.parameters(), lr=1e-3)
         cd, ad, rd = c.to(dt), alb.to(dt), ref.to(dt)
@@ -536,6 +536,8 @@ def cmd_time(a):
         print('train step WSKP-6, batch 8 of 128x128 (forward, SMAPE, backward, Adam; network f32, filter %s%s): '
               'median %.1f ms (min %.1f) of %d; CPU %.0f ms/run'
               % (str(dt)[6:], ' as `train` runs it' if dt == torch.float64 else '', med, best, a.reps, median_ms.cpu))
+    if a.train_only:
+        return
     # (b) inference at 1280x720: merged networks, filter, and both together.
     h, w = 720, 1280
     x = torch.rand(1, 10, h, w, generator=g)
@@ -693,6 +695,7 @@ def main():
     m.add_argument('--threads', type=int, default=2)
     m.add_argument('--reps', type=int, default=20)
     m.add_argument('--infer-reps', type=int, default=10)
+    m.add_argument('--train-only', action='store_true', help='only the training step (f32 filter)')
     f = sub.add_parser('fixture', help='write the Rust test fixture')
     f.add_argument('-o', '--output', required=True)
     a = p.parse_args()

@@ -30,8 +30,9 @@ fn main() {
         ws.aux[0].copy_from_slice(&data);
         Ok(())
     };
-    let head =
-        |_: usize, _: &Nets<'_>, wss: &mut [Workspace]| wskp::head(&mut wss[0], Loss::Smape, 1.0 / batch as f32, isa);
+    let head = |_: usize, _: &Nets<'_>, wss: &mut [Workspace]| {
+        wskp::head(&mut wss[0], wskp::Sizes::ALL, Loss::Smape, 1.0 / batch as f32, isa)
+    };
     let mut times = Vec::new();
     for _ in 0..reps + 2 {
         let t = std::time::Instant::now();

@@ -131,6 +131,10 @@ fn firefly(s: &str) -> std::result::Result<f32, String> {
         .ok_or_else(|| format!("expected a number from 0 (off) up to 1e6, got '{s}'"))
 }
 
+fn wskp_sizes(s: &str) -> std::result::Result<crate::wskp::Sizes, String> {
+    crate::wskp::Sizes::parse(s)
+}
+
 fn layers(s: &str) -> std::result::Result<usize, String> {
     match s.trim() {
         "3" => Ok(3),
@@ -391,6 +395,10 @@ struct TrainCli {
     /// WSKP: ImportanceNet layers (3 or 6)
     #[arg(long, value_name = "N", default_value = "6", value_parser = layers)]
     layers: usize,
+    /// WSKP: the window sizes, one importance map each (one size alone: no fusion; the weights file
+    /// records them and `denoise` reads them from it)
+    #[arg(long, value_name = "LIST", default_value = "3,5,7,9,11,13", value_parser = wskp_sizes)]
+    sizes: crate::wskp::Sizes,
     /// Crops per step
     #[arg(long, value_name = "N", default_value = "8", value_parser = batch)]
     batch: usize,
@@ -549,6 +557,7 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
             a.checkpoint_minutes = t.checkpoint_minutes;
             a.log = t.log;
             a.variant = t.variant;
+            a.sizes = t.sizes;
             Command::Train(a)
         }
         Some(Sub::Score(s)) => Command::Score { reference: s.reference, output: s.output, json: s.json },

@@ -76,6 +76,8 @@ pub struct TrainArgs {
     pub log: Option<PathBuf>,
     /// AFN: which images it filters.
     pub variant: afn::Variant,
+    /// WSKP: the window sizes.
+    pub sizes: wskp::Sizes,
 }
 
 impl Default for TrainArgs {
@@ -101,6 +103,7 @@ impl Default for TrainArgs {
             val_every: 500,
             log: None,
             variant: afn::Variant::Fusion,
+            sizes: wskp::Sizes::ALL,
         }
     }
 }
@@ -255,8 +258,8 @@ fn checkpoint_path(out: &Path) -> PathBuf {
 /// What is being trained.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Model {
-    /// WSKP with this many layers.
-    Wskp(usize),
+    /// WSKP with this many layers and these window sizes.
+    Wskp(usize, wskp::Sizes),
     /// AFN, the kernel predictor and the refinement together.
     Afn(afn::Variant),
 }
@@ -264,27 +267,27 @@ enum Model {
 impl Model {
     fn name(self) -> &'static str {
         match self {
-            Model::Wskp(_) => "wskp",
+            Model::Wskp(..) => "wskp",
             Model::Afn(_) => "afn",
         }
     }
     fn nets(self) -> Result<Vec<Net>> {
         Ok(match self {
-            Model::Wskp(l) => vec![wskp::net(l)?],
+            Model::Wskp(l, s) => vec![wskp::net_for(l, s)?],
             Model::Afn(_) => vec![afn::kernel_net()?, afn::refine_net()?],
         })
     }
     /// Metadata every file of this model carries.
     fn meta(self) -> Vec<(&'static str, String)> {
         match self {
-            Model::Wskp(l) => vec![("layers", l.to_string())],
+            Model::Wskp(l, s) => vec![("layers", l.to_string()), ("sizes", s.name())],
             Model::Afn(v) => vec![("variant", v.name().to_string())],
         }
     }
     /// Planes of a sample: the network input, then the model's own.
     fn planes(self) -> (usize, usize) {
         match self {
-            Model::Wskp(_) => (wskp::CIN, 9),
+            Model::Wskp(..) => (wskp::CIN, 9),
             Model::Afn(_) => (afn::CIN, afn::buf::DATA_PLANES),
         }
     }
@@ -300,7 +303,7 @@ impl Model {
                 let mut data = vec![0.0f32; (cin + own) * n];
                 let (x, rest) = data.split_at_mut(cin * n);
                 match self {
-                    Model::Wskp(_) => {
+                    Model::Wskp(..) => {
                         wskp::check_inputs(f)?;
                         let (c, rest) = rest.split_at_mut(3 * n);
                         let (alb, rf) = rest.split_at_mut(3 * n);
@@ -326,7 +329,7 @@ impl Model {
     /// The denoiser for validation, with the flat parameters of every network.
     fn denoiser(self, f: &Frame, nets: &[Net], params: &[f32]) -> Result<Box<dyn Denoiser>> {
         Ok(match self {
-            Model::Wskp(l) => Box::new(wskp::Wskp::<F32>::from_params(f, nets[0].clone(), params.to_vec(), l)?),
+            Model::Wskp(l, s) => Box::new(wskp::Wskp::<F32>::from_params(f, nets[0].clone(), params.to_vec(), l, s)?),
             Model::Afn(v) => {
                 let k = nets[0].params;
                 Box::new(afn::Afn::<F32>::from_params(f, (params[..k].to_vec(), params[k..].to_vec()), true, v)?)
@@ -370,7 +373,7 @@ impl Model {
             f.expect_meta(k, &v)?;
         }
         Ok(match self {
-            Model::Wskp(_) => f.params(&nets[0], "wskp", &["adam.m", "adam.v"])?,
+            Model::Wskp(..) => f.params(&nets[0], "wskp", &["adam.m", "adam.v"])?,
             Model::Afn(_) => {
                 let (kp, rp) = afn::split_params(f, &nets[0], &nets[1])?;
                 [kp, rp].concat()
@@ -382,7 +385,7 @@ impl Model {
 /// Runs `mcdenoise train`.
 pub fn run(a: &TrainArgs) -> Result<()> {
     let model = match a.method.as_str() {
-        "wskp" => Model::Wskp(a.layers),
+        "wskp" => Model::Wskp(a.layers, a.sizes),
         "afn" => Model::Afn(a.variant),
         m => return Err(HostError::Usage(format!("train --method: expected wskp or afn, got '{m}'"))),
     };
@@ -447,7 +450,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     }
     for wss in tr.workspaces() {
         match model {
-            Model::Wskp(_) => wskp::crop_buffers(&mut wss[0]),
+            Model::Wskp(..) => wskp::crop_buffers(&mut wss[0]),
             Model::Afn(_) => afn::crop_buffers(wss),
         }
     }
@@ -487,7 +490,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             Ok(())
         };
         let head = |_: usize, nets: &Nets<'_>, wss: &mut [Workspace]| match model {
-            Model::Wskp(_) => wskp::head(&mut wss[0], loss, scale, isa),
+            Model::Wskp(_, s) => wskp::head(&mut wss[0], s, loss, scale, isa),
             Model::Afn(v) => afn::head(nets, wss, loss, scale, true, v),
         };
         let st = tr.step(&pool, a.isa, &fill, &head, true)?;

@@ -36,8 +36,80 @@ pub const SIZES: [usize; 6] = [3, 5, 7, 9, 11, 13];
 /// Input channels.
 pub const CIN: usize = 10;
 
-/// The ImportanceNet with `layers` layers (3 or 6).
+/// The window sizes a network predicts for: the paper's six, fused, or any
+/// subset of them (one size alone: no fusion logits; the paper's Fig. 9
+/// compares those with the fusion). A bit per size, so it is `Copy`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Sizes(u16);
+
+impl Sizes {
+    /// The six sizes of the paper, fused.
+    pub const ALL: Sizes = Sizes(0b11_1111);
+    /// Parses `"3,5,7,9,11,13"` or `"7"` (sizes from [`SIZES`], each once).
+    pub fn parse(s: &str) -> std::result::Result<Sizes, String> {
+        let mut bits = 0u16;
+        for part in s.split(',') {
+            let k: usize = part.trim().parse().map_err(|_| format!("expected sizes from 3,5,7,9,11,13, got '{s}'"))?;
+            let i = SIZES
+                .iter()
+                .position(|&v| v == k)
+                .ok_or_else(|| format!("expected sizes from 3,5,7,9,11,13, got {k} in '{s}'"))?;
+            if bits & (1 << i) != 0 {
+                return Err(format!("size {k} given twice in '{s}'"));
+            }
+            bits |= 1 << i;
+        }
+        Ok(Sizes(bits))
+    }
+    /// The sizes, ascending, in the first [`Sizes::count`] entries.
+    pub fn array(self) -> [usize; 6] {
+        let mut a = [0usize; 6];
+        let mut m = 0;
+        for (i, &k) in SIZES.iter().enumerate() {
+            if self.0 & (1 << i) != 0 {
+                a[m] = k;
+                m += 1;
+            }
+        }
+        a
+    }
+    /// How many sizes.
+    pub fn count(self) -> usize {
+        self.0.count_ones() as usize
+    }
+    /// The network's output planes: an importance logit per size, and a
+    /// fusion logit per size when there is more than one.
+    pub fn outputs(self) -> usize {
+        let m = self.count();
+        if m > 1 {
+            2 * m
+        } else {
+            m
+        }
+    }
+    /// `"3,5,7,9,11,13"`: the form [`Sizes::parse`] reads (and the weights
+    /// files' `sizes` metadata).
+    pub fn name(self) -> String {
+        let a = self.array();
+        a[..self.count()].iter().map(|k| k.to_string()).collect::<Vec<_>>().join(",")
+    }
+    /// The sizes of a weights file (its `sizes` metadata; files without it
+    /// are the paper's six).
+    pub fn of_file(file: &File) -> Result<Sizes> {
+        match file.meta("sizes") {
+            None => Ok(Sizes::ALL),
+            Some(v) => Sizes::parse(&v).map_err(|e| HostError::Usage(format!("wskp weights: sizes metadata: {e}"))),
+        }
+    }
+}
+
+/// The ImportanceNet with `layers` layers (3 or 6) for the six sizes.
 pub fn net(layers: usize) -> Result<Net> {
+    net_for(layers, Sizes::ALL)
+}
+
+/// The ImportanceNet with `layers` layers (3 or 6) for `sizes`.
+pub fn net_for(layers: usize, sizes: Sizes) -> Result<Net> {
     if layers != 3 && layers != 6 {
         return Err(HostError::Usage(format!("--layers: expected 3 or 6, got {layers}")));
     }
@@ -47,7 +119,7 @@ pub fn net(layers: usize) -> Result<Net> {
     for _ in 0..layers - 2 {
         l.push(block(14, leaky));
     }
-    l.push(block(12, Activation::Identity));
+    l.push(block(sizes.outputs(), Activation::Identity));
     Net::new(NetDesc { cin: CIN, layers: l })
 }
 
@@ -150,29 +222,31 @@ pub fn crop_buffers(ws: &mut Workspace) {
 /// The training head of a crop: the fused filter on the network's output,
 /// the loss against the reference, and the output's gradient (of the batch
 /// mean: `scale` = 1 / batch).
-pub fn head(ws: &mut Workspace, loss: Loss, scale: f32, isa: mcdenoise_core::Isa) -> Result<f32> {
+pub fn head(ws: &mut Workspace, sizes: Sizes, loss: Loss, scale: f32, isa: mcdenoise_core::Isa) -> Result<f32> {
     let (w, h) = ws.size();
     let n = w * h;
-    let (out12, dy, aux) = ws.head_parts();
+    let (logits, dy, aux) = ws.head_parts();
     let [data, out, g, drad, fs, gs] = &mut aux[..] else {
         return Err(HostError::Usage("wskp: crop buffers missing".into()));
     };
-    let imp = View::new(&out12[..6 * n], 6, w, h)?;
-    let fus = View::new(&out12[6 * n..], 6, w, h)?;
+    let (arr, m) = (sizes.array(), sizes.count());
+    let imp = View::new(&logits[..m * n], m, w, h)?;
+    let fus = if m > 1 { Some(View::new(&logits[m * n..2 * m * n], m, w, h)?) } else { None };
     let inp = FusedInputs {
-        sizes: &SIZES,
+        sizes: &arr[..m],
         importance: imp,
-        fusion: Some(fus),
+        fusion: fus,
         albedo: Some(View::new(&data[3 * n..6 * n], 3, w, h)?),
         radiance: View::new(&data[..3 * n], 3, w, h)?,
     };
     softmax::fused_filter::<F32>(isa, WindowPath::Separable, &inp, &mut ViewMut::new(out, 3, w, h)?, 0, fs)?;
     let l = loss.eval(out, &data[6 * n..9 * n], g, scale);
     let gv = View::new(g, 3, w, h)?;
-    let (di, df) = dy.split_at_mut(6 * n);
+    let (di, df) = dy.split_at_mut(m * n);
+    let mut dfv = if m > 1 { Some(ViewMut::new(&mut df[..m * n], m, w, h)?) } else { None };
     let grads = sgrad::FusedGrads {
-        importance: &mut ViewMut::new(di, 6, w, h)?,
-        fusion: Some(&mut ViewMut::new(df, 6, w, h)?),
+        importance: &mut ViewMut::new(di, m, w, h)?,
+        fusion: dfv.as_mut(),
         radiance: &mut ViewMut::new(drad, 3, w, h)?,
     };
     sgrad::fused_filter_grad(isa, &inp, &gv, grads, 0, gs)?;
@@ -183,6 +257,7 @@ pub fn head(ws: &mut Workspace, loss: Loss, scale: f32, isa: mcdenoise_core::Isa
 /// filter, every stage in precision `P`.
 pub struct Wskp<P: HostPrecision> {
     plan: Plan,
+    sizes: Sizes,
     net: Net,
     params: Vec<f32>,
     ta: TemporalAccumulation<P>,
@@ -211,11 +286,13 @@ impl Bufs {
 
 impl<P: HostPrecision> Wskp<P> {
     /// For a sequence starting with `first`, with the weights in `file`.
+    /// The window sizes come from the file ([`Sizes::of_file`]).
     pub fn new(first: &Frame, file: &File, layers: usize) -> Result<Self> {
-        let net = net(layers)?;
+        let sizes = Sizes::of_file(file)?;
+        let net = net_for(layers, sizes)?;
         file.expect_meta("layers", &layers.to_string())?;
         let params = file.params(&net, "wskp", &["adam.m", "adam.v"])?;
-        Self::from_params(first, net, params, layers)
+        Self::from_params(first, net, params, layers, sizes)
     }
 
     /// Memory per frame (see [`crate::memory`]): the accumulation, the f32
@@ -263,13 +340,17 @@ impl<P: HostPrecision> Wskp<P> {
     }
 
     /// For a sequence starting with `first`, with parameters in hand.
-    pub fn from_params(first: &Frame, net: Net, params: Vec<f32>, layers: usize) -> Result<Self> {
+    pub fn from_params(first: &Frame, net: Net, params: Vec<f32>, layers: usize, sizes: Sizes) -> Result<Self> {
         check_inputs(first)?;
         let ta = TemporalAccumulation::<P>::new(first, false)?;
         let mut plan = ta.plan().clone();
         plan.built.push(if layers == 6 { "ImportanceNet (6 layers)" } else { "ImportanceNet (3 layers)" });
-        plan.built.push("fused importance filter (sizes 3..13)");
-        Ok(Wskp { plan, net, params, ta, infer: None, bufs: None, stored: None })
+        plan.built.push(match sizes {
+            Sizes::ALL => "fused importance filter (sizes 3..13)",
+            s if s.count() == 1 => "importance filter (one window size, the weights' sizes metadata)",
+            _ => "fused importance filter (the weights' sizes metadata)",
+        });
+        Ok(Wskp { plan, sizes, net, params, ta, infer: None, bufs: None, stored: None })
     }
 }
 
@@ -334,10 +415,11 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
         let xv = View::new(xs, 10, w, h)?.with_frac(xf);
         let logits = t.time("ImportanceNet", || infer.run_view(ctx, xv))?;
         let lv = logits.view();
+        let (arr, m) = (self.sizes.array(), self.sizes.count());
         let inp = FusedInputs {
-            sizes: &SIZES,
-            importance: lv.channels_range(0, 6)?,
-            fusion: Some(lv.channels_range(6, 6)?),
+            sizes: &arr[..m],
+            importance: lv.channels_range(0, m)?,
+            fusion: if m > 1 { Some(lv.channels_range(m, m)?) } else { None },
             albedo: Some(View::new(als, 3, w, h)?.with_frac(af)),
             radiance: View::new(cs, 3, w, h)?.with_frac(cf),
         };
@@ -346,7 +428,7 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
         let amax = bufs.alb.iter().fold(0.0f32, |m, v| m.max(v.abs()));
         let frac = cf - (amax.max(1.0).log2().ceil() as i8);
         let mut out = vec![0.0f32; 3 * n];
-        let len = softmax::fused_scratch_len::<P>(WindowPath::Separable, &SIZES, 3, w);
+        let len = softmax::fused_scratch_len::<P>(WindowPath::Separable, &arr[..m], 3, w);
         match P::borrow_f32(&out).is_some() {
             // f32: the filter writes the returned frame itself.
             true => {

@@ -203,3 +203,39 @@ fn pytorch_forward_matches_ours() {
         }
     }
 }
+
+/// Window sizes: parsed from the CLI's form, written as the weights' `sizes`
+/// metadata and read back from it (absent: the paper's six); a file for
+/// one size does not load as the six-size network (its last layer has one
+/// output plane, named in the error), and bad metadata is refused by name.
+#[test]
+fn window_sizes_round_trip_through_the_weights_file() {
+    use mcdenoise::wskp::Sizes;
+    assert_eq!(Sizes::parse("3,5,7,9,11,13").unwrap(), Sizes::ALL);
+    assert_eq!(Sizes::parse("13, 3").unwrap().name(), "3,13");
+    let one = Sizes::parse("7").unwrap();
+    assert_eq!((one.count(), one.outputs(), one.array()[0]), (1, 1, 7));
+    assert_eq!(Sizes::ALL.outputs(), 12);
+    for (bad, why) in [("4", "got 4"), ("7,7", "twice"), ("", "expected sizes"), ("15", "got 15"), ("x", "expected")] {
+        let e = Sizes::parse(bad).unwrap_err();
+        assert!(e.contains(why), "'{bad}': {e}");
+    }
+    let net = wskp::net_for(3, one).unwrap();
+    let path = tmp("k7.safetensors");
+    let meta = [("layers", "3".to_string()), ("sizes", one.name())];
+    save_params(&path, &net, &net.init(2), Form::Branches, "wskp", &meta).unwrap();
+    let f = File::read(&path).unwrap();
+    assert_eq!(Sizes::of_file(&f).unwrap(), one);
+    assert_eq!(f.params(&net, "wskp", &[]).unwrap().len(), net.params);
+    let e = f.params(&wskp::net(3).unwrap(), "wskp", &[]).unwrap_err().to_string();
+    assert!(e.contains("layers.2.conv5.weight has shape [1, 14, 5, 5], expected [12, 14, 5, 5]"), "{e}");
+    // No sizes metadata: the six.
+    let p6 = tmp("six3.safetensors");
+    let n3 = wskp::net(3).unwrap();
+    save_params(&p6, &n3, &n3.init(1), Form::Branches, "wskp", &[("layers", "3".into())]).unwrap();
+    assert_eq!(Sizes::of_file(&File::read(&p6).unwrap()).unwrap(), Sizes::ALL);
+    let pb = tmp("badsizes.safetensors");
+    save_params(&pb, &net, &net.init(2), Form::Branches, "wskp", &[("layers", "3".into()), ("sizes", "8".into())]).unwrap();
+    let e = Sizes::of_file(&File::read(&pb).unwrap()).unwrap_err().to_string();
+    assert!(e.contains("sizes metadata") && e.contains("got 8"), "{e}");
+}

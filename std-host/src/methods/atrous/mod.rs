@@ -475,7 +475,13 @@ impl<P: HostPrecision> Atrous<P> {
             (
                 match P::borrow_f32(&bf.noise) {
                     Some(s) => Held::Borrowed(s),
-                    None => Held::Owned(Planes::encode_frac::<P>(1, w, h, &bf.noise, noise_frac::<P>(&bf.noise, stats.floor))),
+                    None => Held::Owned(Planes::encode_frac::<P>(
+                        1,
+                        w,
+                        h,
+                        &bf.noise,
+                        noise_frac::<P>(&bf.noise, stats.floor),
+                    )),
                 },
                 normal.map(|d| Held::new::<P>(d, 3, w, h, Kind::Unit)),
                 position.map(|d| Held::new::<P>(d, 3, w, h, Kind::Plain)),
