@@ -187,7 +187,7 @@ pub(super) fn firefly_clamp(
         ctx.pool.planes(vec![&mut *lum], RUN, |s, runs| {
             for (j, l) in runs[0].iter_mut().enumerate() {
                 let i = s + j;
-                *l = match albedo.filter(|_| std::env::var_os("MCD_DEMODCLAMP").is_none()) {
+                *l = match albedo {
                     Some(al) => {
                         (src[i] * demod_factor(al, n, 0, i)
                             + src[n + i] * demod_factor(al, n, 1, i)
