@@ -235,7 +235,8 @@ fn window_sizes_round_trip_through_the_weights_file() {
     save_params(&p6, &n3, &n3.init(1), Form::Branches, "wskp", &[("layers", "3".into())]).unwrap();
     assert_eq!(Sizes::of_file(&File::read(&p6).unwrap()).unwrap(), Sizes::ALL);
     let pb = tmp("badsizes.safetensors");
-    save_params(&pb, &net, &net.init(2), Form::Branches, "wskp", &[("layers", "3".into()), ("sizes", "8".into())]).unwrap();
+    save_params(&pb, &net, &net.init(2), Form::Branches, "wskp", &[("layers", "3".into()), ("sizes", "8".into())])
+        .unwrap();
     let e = Sizes::of_file(&File::read(&pb).unwrap()).unwrap_err().to_string();
     assert!(e.contains("sizes metadata") && e.contains("got 8"), "{e}");
 }
