@@ -21,7 +21,16 @@ fn main() {
     let mut den = if kind == MethodKind::Wskp && layers == 3 {
         let net = mcdenoise::wskp::net(3).unwrap();
         let params = net.init(1);
-        Box::new(mcdenoise::wskp::Wskp::<mcdenoise_core::F32>::from_params(&frame, net, params, 3).unwrap())
+        Box::new(
+            mcdenoise::wskp::Wskp::<mcdenoise_core::F32>::from_params(
+                &frame,
+                net,
+                params,
+                3,
+                mcdenoise::wskp::Sizes::ALL,
+            )
+            .unwrap(),
+        )
     } else {
         methods::create(kind, &settings, &frame).unwrap()
     };

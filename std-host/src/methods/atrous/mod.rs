@@ -55,6 +55,7 @@ use crate::precision::{store_bytes, store_is, HostPrecision, Kind, Planes};
 mod plan;
 mod prepare;
 
+use crate::methods::is_emitter;
 use prepare::{demodulate, firefly_clamp, prepare, Bufs};
 
 /// Albedo epsilon of (de)modulation.
@@ -118,6 +119,9 @@ pub const DISTANCE_REL_SINGLE: f32 = 0.08;
 /// The same with the pair (whose mean has half the variance of one
 /// estimate, so half the relative noise for the same samples per pixel).
 pub const DISTANCE_REL_PAIR: f32 = 0.04;
+/// On a light's outline the noise is raised at most this many times
+/// ([`light_outline`]).
+pub const OUTLINE_CAP: f32 = 256.0;
 /// In fixed point the noise floor is held with at least this many steps
 /// of the noise guide's format ([`noise_frac`]).
 pub const NOISE_FLOOR_LSB: f32 = 64.0;
@@ -435,10 +439,13 @@ impl<P: HostPrecision> Atrous<P> {
                 // colour gate to that neighbour.
                 let med = &mut bf.out[..n];
                 median3(ctx, &bf.noise_raw, w, h, med)?;
-                let med = &*med;
+                let (med, raw, al) = (&*med, &bf.noise_raw[..], albedo);
                 ctx.pool.planes(vec![&mut bf.noise[..]], 1 << 14, |s, runs| {
-                    for (v, &m) in runs[0].iter_mut().zip(&med[s..]) {
+                    for (j, (v, &m)) in runs[0].iter_mut().zip(&med[s..]).enumerate() {
                         *v = v.min(NOISE_CAP * m.max(floor)).max(floor);
+                        if let Some(al) = al {
+                            light_outline(v, s + j, raw, al, w, h);
+                        }
                     }
                 });
             } else {
@@ -446,9 +453,14 @@ impl<P: HostPrecision> Atrous<P> {
                 // A 3x3 median, not a box: where the local estimate mistook an
                 // edge for noise, those pixels are a minority of the window.
                 median3(ctx, &bf.noise_raw, w, h, &mut bf.noise)?;
-                ctx.pool.planes(vec![&mut bf.noise[..]], 1 << 14, |_, runs| {
-                    for v in runs[0].iter_mut() {
+                let (raw, al) = (&bf.noise_raw[..], albedo);
+                ctx.pool.planes(vec![&mut bf.noise[..]], 1 << 14, |s, runs| {
+                    for (j, v) in runs[0].iter_mut().enumerate() {
+                        let i = s + j;
                         *v = v.max(floor);
+                        if let Some(al) = al {
+                            light_outline(v, i, raw, al, w, h);
+                        }
                     }
                 });
             }
@@ -486,7 +498,16 @@ impl<P: HostPrecision> Atrous<P> {
                 normal.map(|d| Held::new::<P>(d, 3, w, h, Kind::Unit)),
                 position.map(|d| Held::new::<P>(d, 3, w, h, Kind::Plain)),
                 depth.map(|d| Held::new::<P>(d, 1, w, h, Kind::Plain)),
-                Held::new::<P>(&bf.c0, nsrc, w, h, Kind::Image),
+                // The format from the images alone: `sure-atrous`'s variance
+                // plane (one estimate) shares it and may saturate (SURE then
+                // reads "more noise than representable", and smooths).
+                match P::borrow_f32(&bf.c0) {
+                    Some(s) => Held::Borrowed(s),
+                    None => {
+                        let frac = P::choose_frac(&bf.c0[..3 * groups * n], Kind::Image);
+                        Held::Owned(Planes::encode_frac::<P>(nsrc, w, h, &bf.c0, frac))
+                    }
+                },
             )
         });
         let guides = AtrousGuides {
@@ -614,6 +635,36 @@ fn noise_frac<P: HostPrecision>(noise: &[f32], floor: f32) -> i8 {
     }
     let need = (NOISE_FLOOR_LSB / floor).log2().ceil().clamp(-8.0, 14.0) as i8;
     image.max(need)
+}
+
+/// On a light's outline (a pixel that is not an emitter with an emitter in
+/// its 3x3 window), some of a pixel's samples see the light and others do
+/// not: its noise `v` is raised to the largest raw estimate among the
+/// window's non-emitters, so that the colour gate lets those pixels average
+/// with each other (the emitters themselves stay apart: their own noise is
+/// small and the gate takes the smaller of the two pixels'). At most
+/// [`OUTLINE_CAP`] times the pixel's own (floored) noise: an unbounded raise
+/// (the raw estimate of a pixel demodulated by a small albedo) set the
+/// fixed-point format of `sure-atrous`'s variance plane and lost the rest.
+fn light_outline(v: &mut f32, i: usize, raw: &[f32], al: &[f32], w: usize, h: usize) {
+    let n = w * h;
+    if is_emitter(al, n, i) {
+        return;
+    }
+    let (y, x) = (i / w, i % w);
+    let (ya, yb, xa, xb) = (y.saturating_sub(1), (y + 2).min(h), x.saturating_sub(1), (x + 2).min(w));
+    if !(ya..yb).any(|yy| (xa..xb).any(|xx| is_emitter(al, n, yy * w + xx))) {
+        return;
+    }
+    let cap = OUTLINE_CAP * *v;
+    for yy in ya..yb {
+        for xx in xa..xb {
+            let q = yy * w + xx;
+            if !is_emitter(al, n, q) {
+                *v = v.max(raw[q].min(cap));
+            }
+        }
+    }
 }
 
 /// The local noise variance of the single estimate `y` (3 planes) into `v`
