@@ -441,28 +441,26 @@ impl<P: HostPrecision> Atrous<P> {
                 median3(ctx, &bf.noise_raw, w, h, med)?;
                 let (med, raw, al) = (&*med, &bf.noise_raw[..], albedo);
                 ctx.pool.planes(vec![&mut bf.noise[..]], 1 << 14, |s, runs| {
-                    for (j, (v, &m)) in runs[0].iter_mut().zip(&med[s..]).enumerate() {
+                    for (v, &m) in runs[0].iter_mut().zip(&med[s..]) {
                         *v = v.min(NOISE_CAP * m.max(floor)).max(floor);
-                        if let Some(al) = al {
-                            light_outline(v, s + j, raw, al, w, h);
-                        }
                     }
                 });
+                if let Some(al) = al {
+                    light_outlines(ctx, &mut bf.noise, raw, al, w, h);
+                }
             } else {
                 local_noise(ctx, &bf.c0[..3 * n], w, h, &mut bf.noise_raw)?;
                 // A 3x3 median, not a box: where the local estimate mistook an
                 // edge for noise, those pixels are a minority of the window.
                 median3(ctx, &bf.noise_raw, w, h, &mut bf.noise)?;
-                let (raw, al) = (&bf.noise_raw[..], albedo);
-                ctx.pool.planes(vec![&mut bf.noise[..]], 1 << 14, |s, runs| {
-                    for (j, v) in runs[0].iter_mut().enumerate() {
-                        let i = s + j;
+                ctx.pool.planes(vec![&mut bf.noise[..]], 1 << 14, |_, runs| {
+                    for v in runs[0].iter_mut() {
                         *v = v.max(floor);
-                        if let Some(al) = al {
-                            light_outline(v, i, raw, al, w, h);
-                        }
                     }
                 });
+                if let Some(al) = albedo {
+                    light_outlines(ctx, &mut bf.noise, &bf.noise_raw, al, w, h);
+                }
             }
             Ok(())
         })?;
@@ -646,12 +644,35 @@ fn noise_frac<P: HostPrecision>(noise: &[f32], floor: f32) -> i8 {
 /// [`OUTLINE_CAP`] times the pixel's own (floored) noise: an unbounded raise
 /// (the raw estimate of a pixel demodulated by a small albedo) set the
 /// fixed-point format of `sure-atrous`'s variance plane and lost the rest.
-fn light_outline(v: &mut f32, i: usize, raw: &[f32], al: &[f32], w: usize, h: usize) {
+///
+/// In runs of whole rows; a row with no emitter within one row of it (the
+/// common case, tested on the first albedo plane) is skipped.
+fn light_outlines(ctx: &Ctx, noise: &mut [f32], raw: &[f32], al: &[f32], w: usize, h: usize) {
     let n = w * h;
-    if is_emitter(al, n, i) {
+    if n == 0 {
         return;
     }
-    let (y, x) = (i / w, i % w);
+    let row_has = |y: usize| al[y * w..(y + 1) * w].iter().any(|&v| v < crate::methods::EMITTER_ALBEDO);
+    ctx.pool.planes(vec![noise], w * 16, |s, runs| {
+        let run = &mut *runs[0];
+        let (ya, yb) = (s / w, (s + run.len()) / w);
+        for y in ya..yb {
+            if !(y.saturating_sub(1)..(y + 2).min(h)).any(row_has) {
+                continue;
+            }
+            for x in 0..w {
+                let i = y * w + x;
+                light_outline(&mut run[i - s], y, x, raw, al, w, h);
+            }
+        }
+    });
+}
+
+fn light_outline(v: &mut f32, y: usize, x: usize, raw: &[f32], al: &[f32], w: usize, h: usize) {
+    let n = w * h;
+    if is_emitter(al, n, y * w + x) {
+        return;
+    }
     let (ya, yb, xa, xb) = (y.saturating_sub(1), (y + 2).min(h), x.saturating_sub(1), (x + 2).min(w));
     if !(ya..yb).any(|yy| (xa..xb).any(|xx| is_emitter(al, n, yy * w + xx))) {
         return;
