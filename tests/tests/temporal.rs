@@ -1,12 +1,11 @@
-//! Temporal accumulation against an independent f64 oracle of its
-//! definition (core `temporal` module docs): bilinear reprojection by motion
-//! with per-tap geometry tests, or the nearest previous world position
-//! without motion; the blend `alpha = max(1 / (n + 1), alpha_min)` and the
-//! capped history. Random frames with sub-pixel and out-of-image motion, NaN
-//! motion, rejected taps, odd sizes and bands of rows, in f32 and f16
-//! storage.
+//! Temporal accumulation against the project's f64 oracle
+//! (`mcdenoise::oracle::temporal`) on inputs the operator registry's
+//! entries do not draw: NaN motion and motion far outside the image, every
+//! pixel's geometry either agreeing or rejected by position or by normal,
+//! history capped, odd sizes and bands of rows, f32 and f16 storage.
 
-use mcdenoise_core::temporal::{self, TemporalInputs, TemporalParams};
+use mcdenoise::oracle::{self, TemporalRef};
+use mcdenoise_core::temporal::{self, TemporalInputs, TemporalParams, TemporalPrecision};
 use mcdenoise_core::{View, ViewMut, F16, F32};
 use mcdenoise_tests::{isas_under_test, Img};
 use proptest::prelude::*;
@@ -94,164 +93,85 @@ fn case(w: usize, h: usize, seed: u64) -> Case {
     c
 }
 
-fn d2(a: &Img, ya: usize, xa: usize, b: &Img, yb: usize, xb: usize) -> f64 {
-    (0..3).map(|ch| (a.at(ch, ya, xa) as f64 - b.at(ch, yb, xb) as f64).powi(2)).sum()
-}
-
-/// The definition in f64: (colour, history) of every pixel.
+/// The project's f64 oracle (`mcdenoise::oracle::temporal`) on a case:
+/// (colour, history) of every pixel.
 fn oracle(c: &Case, motion: bool) -> (Vec<f64>, Vec<f64>) {
-    let (w, h, p) = (c.w, c.h, &c.params);
-    let mut out = vec![0.0; 3 * w * h];
-    let mut hist = vec![0.0; w * h];
-    let agrees = |y: usize, x: usize, py: usize, px: usize| {
-        d2(&c.position, y, x, &c.prev_position, py, px) < (p.pos_limit as f64).powi(2)
-            && d2(&c.normal, y, x, &c.prev_normal, py, px) < (p.normal_limit as f64).powi(2)
+    let (col, nrm, pos, mot) = (c.color.to_f64(), c.normal.to_f64(), c.position.to_f64(), c.motion.to_f64());
+    let (pc, pn, pp, ph) =
+        (c.prev_color.to_f64(), c.prev_normal.to_f64(), c.prev_position.to_f64(), c.prev_history.to_f64());
+    let t = TemporalRef {
+        color: &col,
+        normal: Some(&nrm),
+        position: Some(&pos),
+        motion: motion.then_some(&mot[..]),
+        prev_color: &pc,
+        prev_normal: Some(&pn),
+        prev_position: Some(&pp),
+        prev_history: &ph,
+        c: 3,
+        w: c.w,
+        h: c.h,
     };
-    for y in 0..h {
-        for x in 0..w {
-            let mut taps: Vec<(usize, usize, f64)> = Vec::new();
-            if motion {
-                let fx = x as f64 + c.motion.at(0, y, x) as f64;
-                let fy = y as f64 + c.motion.at(1, y, x) as f64;
-                if fx.is_finite() && fy.is_finite() && fx > -1.0 && fy > -1.0 && fx < w as f64 && fy < h as f64 {
-                    let (x0, y0) = (fx.floor(), fy.floor());
-                    let (tx, ty) = (fx - x0, fy - y0);
-                    for (dy, wy) in [(0.0, 1.0 - ty), (1.0, ty)] {
-                        for (dx, wx) in [(0.0, 1.0 - tx), (1.0, tx)] {
-                            let (py, px) = (y0 + dy, x0 + dx);
-                            let wt = wx * wy;
-                            if wt <= 0.0 || py < 0.0 || px < 0.0 || py >= h as f64 || px >= w as f64 {
-                                continue;
-                            }
-                            let (py, px) = (py as usize, px as usize);
-                            if agrees(y, x, py, px) {
-                                taps.push((py, px, wt));
-                            }
-                        }
-                    }
-                }
-            } else {
-                let r = p.search_radius;
-                let mut best: Option<(f64, usize, usize)> = None;
-                for py in y.saturating_sub(r)..(y + r + 1).min(h) {
-                    for px in x.saturating_sub(r)..(x + r + 1).min(w) {
-                        let d = d2(&c.position, y, x, &c.prev_position, py, px);
-                        if best.is_none_or(|(bd, _, _)| d < bd) {
-                            best = Some((d, py, px));
-                        }
-                    }
-                }
-                if let Some((_, py, px)) = best {
-                    if agrees(y, x, py, px) {
-                        taps.push((py, px, 1.0));
-                    }
-                }
-            }
-            let i = y * w + x;
-            let wsum: f64 = taps.iter().map(|t| t.2).sum();
-            if wsum > 0.0 {
-                let n = (taps.iter().map(|&(py, px, wt)| wt * c.prev_history.at(0, py, px) as f64).sum::<f64>() / wsum)
-                    .max(0.0);
-                let alpha = (1.0 / (n + 1.0)).max(p.alpha_min as f64);
-                for ch in 0..3 {
-                    let prev =
-                        taps.iter().map(|&(py, px, wt)| wt * c.prev_color.at(ch, py, px) as f64).sum::<f64>() / wsum;
-                    out[ch * w * h + i] = alpha * c.color.at(ch, y, x) as f64 + (1.0 - alpha) * prev;
-                }
-                hist[i] = (n + 1.0).min(p.history_cap as f64);
-            } else {
-                for ch in 0..3 {
-                    out[ch * w * h + i] = c.color.at(ch, y, x) as f64;
-                }
-            }
-        }
-    }
-    (out, hist)
+    let p = &c.params;
+    let f = |v: f32| v as f64;
+    oracle::temporal(&t, f(p.pos_limit), f(p.normal_limit), f(p.alpha_min), f(p.history_cap), p.search_radius)
 }
 
-/// The kernel in f32 (or f16 storage) over bands of `band` rows.
-fn kernel<const F16S: bool>(c: &Case, motion: bool, isa: mcdenoise_core::Isa, band: usize) -> (Vec<f32>, Vec<f32>) {
+/// The kernel in precision `P` over bands of `band` rows: the inputs
+/// stored by `store`, the outputs read back by `load`.
+fn kernel<P: TemporalPrecision>(
+    c: &Case,
+    motion: bool,
+    isa: mcdenoise_core::Isa,
+    band: usize,
+    store: impl Fn(&Img) -> Vec<P::Store>,
+    load: impl Fn(P::Store) -> f32,
+) -> (Vec<f32>, Vec<f32>) {
     let (w, h) = (c.w, c.h);
-    let mut out = vec![0.0f32; 3 * w * h];
-    let mut hist = vec![0.0f32; w * h];
-    if F16S {
-        let cv = |i: &Img| i.to_f16();
-        let (col, nrm, pos, mot, pc, pn, pp, ph) = (
-            cv(&c.color),
-            cv(&c.normal),
-            cv(&c.position),
-            cv(&c.motion),
-            cv(&c.prev_color),
-            cv(&c.prev_normal),
-            cv(&c.prev_position),
-            cv(&c.prev_history),
-        );
-        fn v(d: &[half::f16], ch: usize, w: usize, h: usize) -> View<'_, half::f16> {
-            View::new(d, ch, w, h).unwrap()
-        }
-        let inp = TemporalInputs {
-            color: v(&col, 3, w, h),
-            normal: Some(v(&nrm, 3, w, h)),
-            position: Some(v(&pos, 3, w, h)),
-            motion: motion.then(|| v(&mot, 2, w, h)),
-            prev_color: v(&pc, 3, w, h),
-            prev_normal: Some(v(&pn, 3, w, h)),
-            prev_position: Some(v(&pp, 3, w, h)),
-            prev_history: v(&ph, 1, w, h),
-        };
-        let mut o16 = vec![half::f16::ZERO; 3 * w * h];
-        let mut h16 = vec![half::f16::ZERO; w * h];
-        let mut ov = ViewMut::new(&mut o16, 3, w, h).unwrap();
-        let mut hv = ViewMut::new(&mut h16, 1, w, h).unwrap();
-        for y0 in (0..h).step_by(band) {
-            let n = band.min(h - y0);
-            temporal::accumulate::<F16>(
-                isa,
-                &inp,
-                &c.params,
-                &mut ov.rows_mut(y0, n).unwrap(),
-                &mut hv.rows_mut(y0, n).unwrap(),
-                y0,
-            )
-            .unwrap();
-        }
-        out.iter_mut().zip(&o16).for_each(|(o, v)| *o = v.to_f32());
-        hist.iter_mut().zip(&h16).for_each(|(o, v)| *o = v.to_f32());
-    } else {
-        let inp = TemporalInputs {
-            color: c.color.view(),
-            normal: Some(c.normal.view()),
-            position: Some(c.position.view()),
-            motion: motion.then(|| c.motion.view()),
-            prev_color: c.prev_color.view(),
-            prev_normal: Some(c.prev_normal.view()),
-            prev_position: Some(c.prev_position.view()),
-            prev_history: c.prev_history.view(),
-        };
-        let mut ov = ViewMut::new(&mut out, 3, w, h).unwrap();
-        let mut hv = ViewMut::new(&mut hist, 1, w, h).unwrap();
-        for y0 in (0..h).step_by(band) {
-            let n = band.min(h - y0);
-            temporal::accumulate::<F32>(
-                isa,
-                &inp,
-                &c.params,
-                &mut ov.rows_mut(y0, n).unwrap(),
-                &mut hv.rows_mut(y0, n).unwrap(),
-                y0,
-            )
-            .unwrap();
-        }
+    let bufs: Vec<Vec<P::Store>> =
+        [&c.color, &c.normal, &c.position, &c.motion, &c.prev_color, &c.prev_normal, &c.prev_position, &c.prev_history]
+            .into_iter()
+            .map(&store)
+            .collect();
+    let v = |i: usize, ch: usize| View::new(&bufs[i], ch, w, h).unwrap();
+    let inp = TemporalInputs {
+        color: v(0, 3),
+        normal: Some(v(1, 3)),
+        position: Some(v(2, 3)),
+        motion: motion.then(|| v(3, 2)),
+        prev_color: v(4, 3),
+        prev_normal: Some(v(5, 3)),
+        prev_position: Some(v(6, 3)),
+        prev_history: v(7, 1),
+    };
+    let mut out = vec![P::Store::default(); 3 * w * h];
+    let mut hist = vec![P::Store::default(); w * h];
+    let mut ov = ViewMut::new(&mut out, 3, w, h).unwrap();
+    let mut hv = ViewMut::new(&mut hist, 1, w, h).unwrap();
+    for y0 in (0..h).step_by(band) {
+        let n = band.min(h - y0);
+        temporal::accumulate::<P>(
+            isa,
+            &inp,
+            &c.params,
+            &mut ov.rows_mut(y0, n).unwrap(),
+            &mut hv.rows_mut(y0, n).unwrap(),
+            y0,
+        )
+        .unwrap();
     }
-    (out, hist)
+    (out.into_iter().map(&load).collect(), hist.into_iter().map(&load).collect())
 }
 
 fn check(c: &Case, motion: bool, band: usize) {
     let (eo, eh) = oracle(c, motion);
     for isa in isas_under_test() {
         for f16 in [false, true] {
-            let (o, hh) =
-                if f16 { kernel::<true>(c, motion, isa, band) } else { kernel::<false>(c, motion, isa, band) };
+            let (o, hh) = if f16 {
+                kernel::<F16>(c, motion, isa, band, |i| i.to_f16(), |v| v.to_f32())
+            } else {
+                kernel::<F32>(c, motion, isa, band, |i| i.data.clone(), |v| v)
+            };
             // f16 storage: inputs and outputs rounded to 11 bits (positions
             // up to 2^5 keep the geometry tests' margins).
             let rtol = if f16 { 4e-3 } else { 2e-6 };
