@@ -269,10 +269,7 @@ impl<T: bytemuck::Pod + Default> Planes<T> {
         src: &[f32],
         kind: Kind,
     ) -> Self {
-        let frac = P::choose_frac(src, kind);
-        let mut p = Planes::new(channels, width, height).with_frac(frac);
-        P::encode(src, &mut p.data, frac);
-        p
+        Self::encode_frac::<P>(channels, width, height, src, P::choose_frac(src, kind))
     }
     /// Encodes f32 planes with the given fixed-point format (ignored by the
     /// float precisions), saturating what it cannot hold.

@@ -262,9 +262,20 @@ enum Held<'a, T: bytemuck::Pod> {
 
 impl<'a, T: bytemuck::Pod + Default> Held<'a, T> {
     fn new<P: HostPrecision<Store = T>>(d: &'a [f32], ch: usize, w: usize, h: usize, kind: Kind) -> Self {
+        Self::with_frac::<P>(d, ch, w, h, || P::choose_frac(d, kind))
+    }
+    /// As [`Held::new`], in the fixed-point format `frac()` gives (asked
+    /// only when the data is encoded).
+    fn with_frac<P: HostPrecision<Store = T>>(
+        d: &'a [f32],
+        ch: usize,
+        w: usize,
+        h: usize,
+        frac: impl FnOnce() -> i8,
+    ) -> Self {
         match P::borrow_f32(d) {
             Some(s) => Held::Borrowed(s),
-            None => Held::Owned(Planes::encode_as::<P>(ch, w, h, d, kind)),
+            None => Held::Owned(Planes::encode_frac::<P>(ch, w, h, d, frac())),
         }
     }
     fn view(&self, ch: usize, w: usize, h: usize) -> View<'_, T> {
@@ -409,10 +420,10 @@ impl<P: HostPrecision> Atrous<P> {
                 // bright samples are most of the signal there.
                 let rel = noise_floor(ctx, ca, w, h, scratch).relative;
                 let k = k * (rel / CLAMP_REL).clamp(1.0, 1e6);
-                firefly_clamp(ctx, ca, albedo, scratch, w, h, k);
+                firefly_clamp(ctx, ca, a, albedo, scratch, w, h, k);
                 if let Some(b) = b {
                     demodulate(ctx, b, albedo, cb);
-                    firefly_clamp(ctx, cb, albedo, scratch, w, h, k);
+                    firefly_clamp(ctx, cb, b, albedo, scratch, w, h, k);
                 }
             });
             (&*ca, b.map(|_| &*cb), None)
@@ -483,29 +494,14 @@ impl<P: HostPrecision> Atrous<P> {
         // frame's own f32 data when that is the precision).
         let (noise_g, normal_g, position_g, depth_g, c0) = t.time("guides", || {
             (
-                match P::borrow_f32(&bf.noise) {
-                    Some(s) => Held::Borrowed(s),
-                    None => Held::Owned(Planes::encode_frac::<P>(
-                        1,
-                        w,
-                        h,
-                        &bf.noise,
-                        noise_frac::<P>(&bf.noise, stats.floor),
-                    )),
-                },
+                Held::with_frac::<P>(&bf.noise, 1, w, h, || noise_frac::<P>(&bf.noise, stats.floor)),
                 normal.map(|d| Held::new::<P>(d, 3, w, h, Kind::Unit)),
                 position.map(|d| Held::new::<P>(d, 3, w, h, Kind::Plain)),
                 depth.map(|d| Held::new::<P>(d, 1, w, h, Kind::Plain)),
                 // The format from the images alone: `sure-atrous`'s variance
                 // plane (one estimate) shares it and may saturate (SURE then
                 // reads "more noise than representable", and smooths).
-                match P::borrow_f32(&bf.c0) {
-                    Some(s) => Held::Borrowed(s),
-                    None => {
-                        let frac = P::choose_frac(&bf.c0[..3 * groups * n], Kind::Image);
-                        Held::Owned(Planes::encode_frac::<P>(nsrc, w, h, &bf.c0, frac))
-                    }
-                },
+                Held::with_frac::<P>(&bf.c0, nsrc, w, h, || P::choose_frac(&bf.c0[..3 * groups * n], Kind::Image)),
             )
         });
         let guides = AtrousGuides {

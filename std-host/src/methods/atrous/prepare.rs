@@ -153,8 +153,8 @@ pub(super) fn demod_factor(al: &[f32], n: usize, c: usize, i: usize) -> f32 {
 }
 
 /// The firefly clamp, in place on the 3 demodulated planes of `img` (`w x
-/// h`): a pixel whose luminance (mean of the channels, of the radiance:
-/// remodulated when there is albedo) `L` exceeds `T = m + k s`, with
+/// h`), demodulated from `radiance`: a pixel whose luminance (mean of the
+/// channels of `radiance`) `L` exceeds `T = m + k s`, with
 /// `m` and `s` the mean and standard deviation of its 5x5 neighbours (the
 /// centre left out, the window clipped at the border), is scaled by `T / L`
 /// (its colour kept). Emitters ([`crate::methods::EMITTER_ALBEDO`]) are
@@ -165,9 +165,11 @@ pub(super) fn demod_factor(al: &[f32], n: usize, c: usize, i: usize) -> f32 {
 /// outline). `scratch` holds 4
 /// planes of `w h` floats: the luminance, the factor and the two row sums
 /// of the separable window sums.
+#[allow(clippy::too_many_arguments)]
 pub(super) fn firefly_clamp(
     ctx: &Ctx,
     img: &mut [f32],
+    radiance: &[f32],
     albedo: Option<&[f32]>,
     scratch: &mut [f32],
     w: usize,
@@ -182,23 +184,12 @@ pub(super) fn firefly_clamp(
     let (fac, rest) = rest.split_at_mut(n);
     let (rs1, rest) = rest.split_at_mut(n);
     let rs2 = &mut rest[..n];
-    {
-        let src = &*img;
-        ctx.pool.planes(vec![&mut *lum], RUN, |s, runs| {
-            for (j, l) in runs[0].iter_mut().enumerate() {
-                let i = s + j;
-                *l = match albedo {
-                    Some(al) => {
-                        (src[i] * demod_factor(al, n, 0, i)
-                            + src[n + i] * demod_factor(al, n, 1, i)
-                            + src[2 * n + i] * demod_factor(al, n, 2, i))
-                            / 3.0
-                    }
-                    None => (src[i] + src[n + i] + src[2 * n + i]) / 3.0,
-                };
-            }
-        });
-    }
+    ctx.pool.planes(vec![&mut *lum], RUN, |s, runs| {
+        for (j, l) in runs[0].iter_mut().enumerate() {
+            let i = s + j;
+            *l = (radiance[i] + radiance[n + i] + radiance[2 * n + i]) / 3.0;
+        }
+    });
     {
         // Row sums of L and L^2 over the 5 columns around each pixel.
         let lum = &*lum;
