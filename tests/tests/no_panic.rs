@@ -8,6 +8,7 @@ use half::f16;
 use mcdenoise_core::atrous::{self, AtrousGuides, AtrousParams, SureSource};
 use mcdenoise_core::conv::{self, grad as cgrad, Activation, Conv2d, ConvPrecision};
 use mcdenoise_core::pool::{self, grad as pgrad, Reduce};
+use mcdenoise_core::regress;
 use mcdenoise_core::softmax::{self, grad as sgrad, FusedInputs, WindowPath};
 use mcdenoise_core::temporal::{self, TemporalInputs, TemporalParams};
 use mcdenoise_core::tonemap::{self, Map};
@@ -35,6 +36,65 @@ fn composite_grad_with_no_channels() {
             let r = pgrad::composite_grad(isa, &v(z), &v(cs), &v(z), &v(z), &mut df, &mut dc, &mut da, 0);
             assert!(r.is_ok(), "{isa:?} {w}x{h}: {r:?}");
         }
+    }
+}
+
+/// Temporal accumulation with a history band shorter than the colour band:
+/// each band passed its own check, then the kernel wrote history rows by the
+/// colour band's count (found by the property below in CI).
+#[test]
+fn temporal_history_band_must_match_the_colour_band() {
+    let (w, h) = (5, 4);
+    let c3 = vec![0.5f32; 3 * w * h];
+    let m2 = vec![0.0f32; 2 * w * h];
+    let h1 = vec![1.0f32; w * h];
+    let inp = TemporalInputs {
+        color: View::new(&c3, 3, w, h).unwrap(),
+        normal: None,
+        position: None,
+        motion: Some(View::new(&m2, 2, w, h).unwrap()),
+        prev_color: View::new(&c3, 3, w, h).unwrap(),
+        prev_normal: None,
+        prev_position: None,
+        prev_history: View::new(&h1, 1, w, h).unwrap(),
+    };
+    for isa in isas_under_test() {
+        for hist_rows in [0, 1, 2] {
+            let (mut cd, mut hd) = (vec![0.0f32; 3 * w * 3], vec![0.0f32; w * hist_rows]);
+            let mut color = ViewMut::new(&mut cd, 3, w, 3).unwrap();
+            let mut history = ViewMut::new(&mut hd, 1, w, hist_rows).unwrap();
+            let r = temporal::accumulate::<F32>(isa, &inp, &TemporalParams::default(), &mut color, &mut history, 1);
+            assert!(matches!(r, Err(Error::ShapeMismatch { what: "accumulated history", .. })), "{isa:?}: {r:?}");
+        }
+    }
+}
+
+/// The cross-regression filter with fewer parameter rows than output rows:
+/// an error naming the output band, not a row index panic.
+#[test]
+fn cross_filter_output_band_must_match_the_parameters() {
+    let (w, h) = (7, 6);
+    let c3 = vec![0.25f32; 3 * w * h];
+    let v1 = vec![1.0f32; w * h];
+    let three = || View::new(&c3, 3, w, h).unwrap();
+    let fin = regress::FilterInputs {
+        pilot_a: three(),
+        pilot_b: three(),
+        albedo: three(),
+        normal: three(),
+        prev: three(),
+        valid: View::new(&v1, 1, w, h).unwrap(),
+    };
+    let pd = vec![0.0f32; 6 * w * 2];
+    let params = View::new(&pd, 6, w, 2).unwrap();
+    let mut scr = vec![0.0f32; regress::filter_scratch_len(w)];
+    for isa in isas_under_test() {
+        let mut od = vec![0.0f32; 9 * w * 4];
+        let r = regress::filter_rows(isa, &fin, &params, &mut ViewMut::new(&mut od, 9, w, 4).unwrap(), 0, &mut scr);
+        assert!(matches!(r, Err(Error::ShapeMismatch { what: "filter output", .. })), "{isa:?}: {r:?}");
+        let mut od = vec![0.0f32; 9 * w * 2];
+        let r = regress::filter_rows(isa, &fin, &params, &mut ViewMut::new(&mut od, 9, w, 2).unwrap(), 0, &mut scr);
+        assert_eq!(r, Ok(()), "{isa:?}");
     }
 }
 
@@ -338,10 +398,12 @@ where
     ok(tonemap::remodulate::<P>(isa, &pv, &av, cs.vals[3], &mut view_mut(&mut od, os)));
 
     // conv
-    let (cin, cout) = (c.max(1) - usize::from(g.flag() && c > 1), 1 + cs.extra % 4);
-    let nw = (cout * cin * k * k).saturating_sub(usize::from(g.flag()));
+    // Each argument wrong one time in four, so that some cases reach the kernel.
+    let (cin, cout) = (c.max(1) - usize::from(g.flag() && g.flag() && c > 1), 1 + cs.extra % 4);
+    let nw = (cout * cin * k * k).saturating_sub(usize::from(g.flag() && g.flag()));
     let wts: Vec<P::Store> = (0..nw).map(|i| P::Store::v(cs.vals[i % 16] / 64.0)).collect();
-    let bias: Vec<P::Store> = (0..cout + usize::from(g.flag())).map(|i| P::Store::v(cs.vals[i % 16])).collect();
+    let bias: Vec<P::Store> =
+        (0..cout + usize::from(g.flag() && g.flag())).map(|i| P::Store::v(cs.vals[i % 16])).collect();
     let slope = cs.vals[4] / 40.0;
     let act = [Activation::Identity, Activation::Relu, Activation::LeakyRelu(slope)][cs.extra % 3];
     let layer = Conv2d { k, cin, cout, weights: &wts, bias: g.flag().then_some(&bias[..]), act, weight_frac: 10 };
@@ -461,7 +523,8 @@ fn f32_ops(isa: Isa, cs: &Case) {
     let (mut iv, mut rv) = (view_mut(&mut a, sa), view_mut(&mut cc, sc));
     let out = sgrad::FusedGrads {
         importance: &mut iv,
-        fusion: if g.flag() { Some(&mut fv) } else { None },
+        // Present exactly when the inputs have fusion logits three times in four.
+        fusion: if with_f != (g.flag() && g.flag()) { Some(&mut fv) } else { None },
         radiance: &mut rv,
     };
     ok(sgrad::fused_filter_grad(isa, &inp, &view(&gd, gs), out, y0, &mut scr));
@@ -562,6 +625,38 @@ fn f32_ops(isa: Isa, cs: &Case) {
     ok(atrous::noise::local_noise_rows(&view(&sd, ss), &mut view_mut(&mut od, os), y0));
     let (sd, ss) = g.buf::<f32>((1, w, h));
     ok(atrous::noise::median3_rows(&view(&sd, ss), &mut view_mut(&mut od, os), y0));
+
+    // cross-regression: variance, regression, the filter and its gradient
+    let (sd, ss) = g.buf::<f32>((3, w, h));
+    let (mut od, os) = g.buf::<f32>((1, w, n));
+    ok(regress::variance_rows(isa, &view(&sd, ss), &mut view_mut(&mut od, os), y0));
+    let three: Vec<(Vec<f32>, Shape)> = (0..6).map(|_| g.buf::<f32>((3, w, h))).collect();
+    let (vd, vs) = g.buf::<f32>((1, w, h));
+    let rin = regress::RegressionInputs {
+        x: view(&three[0].0, three[0].1),
+        var: view(&vd, vs),
+        y: view(&three[1].0, three[1].1),
+        albedo: view(&three[2].0, three[2].1),
+        normal: view(&three[3].0, three[3].1),
+    };
+    let (mut od, os) = g.buf::<f32>((3, w, n));
+    let mut scr = g.scratch(regress::regression_scratch_len(w));
+    ok(regress::regression_rows(isa, &rin, &mut view_mut(&mut od, os), y0, &mut scr));
+    let fin = regress::FilterInputs {
+        pilot_a: view(&three[0].0, three[0].1),
+        pilot_b: view(&three[1].0, three[1].1),
+        albedo: view(&three[2].0, three[2].1),
+        normal: view(&three[3].0, three[3].1),
+        prev: view(&three[4].0, three[4].1),
+        valid: view(&vd, vs),
+    };
+    let (pd, ps) = g.buf::<f32>((6, w, n));
+    let (mut od, os) = g.buf::<f32>((9, w, n));
+    let mut scr = g.scratch(regress::filter_scratch_len(w));
+    ok(regress::filter_rows(isa, &fin, &view(&pd, ps), &mut view_mut(&mut od, os), y0, &mut scr));
+    let (gd, gs) = g.buf::<f32>((6, w, n));
+    let (mut dd, ds) = g.buf::<f32>((6, w, n));
+    ok(regress::filter_grad_rows(isa, &fin, &view(&pd, ps), &view(&gd, gs), &mut view_mut(&mut dd, ds), y0, &mut scr));
 }
 
 /// The call sites (source lines) that returned `Ok` at least once, so that
@@ -585,7 +680,7 @@ fn ok<T>(r: Result<T, Error>) {
 #[test]
 fn no_public_operator_panics_on_caller_input() {
     let mut runner =
-        proptest::test_runner::TestRunner::new(ProptestConfig { cases: 1000, ..ProptestConfig::default() });
+        proptest::test_runner::TestRunner::new(ProptestConfig { cases: 4000, ..ProptestConfig::default() });
     runner
         .run(&case(), |cs| {
             for isa in isas_under_test() {

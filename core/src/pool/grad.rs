@@ -26,7 +26,7 @@
 //! vectorises them; no FMA contraction, so every ISA gives the same bits).
 
 use crate::error::{check_shape, Error, Result, Shape};
-use crate::unfold::check_band;
+use crate::unfold::{check_band, check_band_rows};
 use crate::view::{View, ViewMut};
 use crate::Isa;
 
@@ -301,12 +301,14 @@ pub fn composite_grad(
     }
     let n = d_fine.height();
     check_band("compositor fine gradient", full, d_fine.shape(), y0)?;
-    check_band("compositor alpha gradient", Shape::new(na, full.width, full.height), d_alpha.shape(), y0)?;
-    check_band(
+    check_band_rows("compositor alpha gradient", Shape::new(na, full.width, full.height), d_alpha.shape(), y0, n)?;
+    let coarse_rows = (y0 + n).div_ceil(2) - y0 / 2;
+    check_band_rows(
         "compositor coarse gradient",
-        Shape::new(full.channels, cs.width, (y0 + n).div_ceil(2) - y0 / 2),
+        Shape::new(full.channels, cs.width, coarse_rows),
         d_coarse.shape(),
         0,
+        coarse_rows,
     )?;
     let (w, h) = (full.width, full.height);
     versions!(isa, || {

@@ -38,7 +38,7 @@
 
 use crate::error::{check_scratch, check_shape, Error, Result, Shape};
 use crate::math::{EXP_C, EXP_HI, EXP_LO, LN2_HI, LN2_LO, LOG2E, ROUND_MAGIC};
-use crate::unfold::check_band;
+use crate::unfold::{check_band, check_band_rows};
 use crate::view::{View, ViewMut};
 use crate::Isa;
 
@@ -867,9 +867,13 @@ pub fn filter_rows(
     let isa = isa.check()?;
     let s = inp.check()?;
     check_params("filter parameters", s, params.shape(), y0, PARAMS)?;
-    check_params("filter output", s, out.shape(), y0, 9)?;
+    check_band_rows("filter output", Shape::new(9, s.width, s.height), out.shape(), y0, params.height())?;
     check_scratch(filter_scratch_len(s.width), scratch.len())?;
     let w = s.width;
+    if w == 0 {
+        // Rows of no pixels: nothing to write (and no window rows to mirror).
+        return Ok(());
+    }
     let pw = padded_width(w);
     versions!(isa, || {
         let mut sums = Sums { s: [[0.0; CHUNK]; 8], t: [[0.0; CHUNK]; 16] };
@@ -942,6 +946,10 @@ pub fn filter_grad_rows(
     }
     check_scratch(filter_scratch_len(s.width), scratch.len())?;
     let w = s.width;
+    if w == 0 {
+        // Rows of no pixels: nothing to write (and no window rows to mirror).
+        return Ok(());
+    }
     let pw = padded_width(w);
     versions!(isa, || {
         let mut sums = Sums { s: [[0.0; CHUNK]; 8], t: [[0.0; CHUNK]; 16] };

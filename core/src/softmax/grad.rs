@@ -38,7 +38,7 @@
 use crate::error::{check_scratch, check_shape, Error, Result, Shape};
 use crate::math::scalar::exp;
 use crate::softmax::{FusedInputs, LOGIT_LIMIT, MAX_CHANNELS, MAX_FUSED, MAX_WINDOW};
-use crate::unfold::check_band;
+use crate::unfold::{check_band, check_band_rows};
 use crate::view::{View, ViewMut};
 use crate::Isa;
 
@@ -245,9 +245,9 @@ pub fn fused_filter_grad(
     check_shape("fused output gradient", s, g.shape())?;
     let n = out.importance.height();
     check_band("fused importance gradient", plane(m), out.importance.shape(), y0)?;
-    check_band("fused radiance gradient", s, out.radiance.shape(), y0)?;
+    check_band_rows("fused radiance gradient", s, out.radiance.shape(), y0, n)?;
     match (&out.fusion, &inp.fusion) {
-        (Some(f), Some(_)) => check_band("fused fusion gradient", plane(m), f.shape(), y0)?,
+        (Some(f), Some(_)) => check_band_rows("fused fusion gradient", plane(m), f.shape(), y0, n)?,
         (None, None) => {}
         _ => {
             return Err(Error::BadParameter {

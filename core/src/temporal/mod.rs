@@ -25,7 +25,7 @@ use crate::precision::{
     sealed::{Checked, Sealed},
     F16Arith, Fixed, Precision, F16, F32,
 };
-use crate::unfold::check_band;
+use crate::unfold::{check_band, check_band_rows};
 use crate::view::{View, ViewMut};
 use crate::Isa;
 
@@ -170,7 +170,7 @@ pub fn accumulate<P: TemporalPrecision>(
         });
     }
     check_band("accumulated colour", s, color.shape(), y0)?;
-    check_band("accumulated history", plane(1), history.shape(), y0)?;
+    check_band_rows("accumulated history", plane(1), history.shape(), y0, color.height())?;
     if color.height() == 0 || s.width == 0 {
         return Ok(());
     }

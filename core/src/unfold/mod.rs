@@ -154,3 +154,10 @@ pub(crate) fn check_band(what: &'static str, full: Shape, band: Shape, y0: usize
     }
     check_shape(what, expected, band)
 }
+
+/// [`check_band`] for a second output of the same call: it must also cover exactly `rows` rows,
+/// the rows of the call's first band (the kernels index every band by the first one's rows).
+pub(crate) fn check_band_rows(what: &'static str, full: Shape, band: Shape, y0: usize, rows: usize) -> Result<()> {
+    check_band(what, full, band, y0)?;
+    check_shape(what, Shape::new(full.channels, full.width, rows), band)
+}
