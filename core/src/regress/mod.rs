@@ -249,6 +249,16 @@ fn expand_row(inp: &RegressionInputs<'_>, j: usize, coeffs: &[f32], e: &mut [f32
 
 /// Centres solved together (one AVX-512 or two AVX2 vectors).
 const LANES: usize = 16;
+/// 1 on the lanes of a chunk that sit on a centre column (chunks start on one).
+const ON_CENTRE: [f32; LANES] = {
+    let mut m = [0.0f32; LANES];
+    let mut l = 0;
+    while l < LANES {
+        m[l] = if l % SPARSITY == 0 { 1.0 } else { 0.0 };
+        l += 1;
+    }
+    m
+};
 /// Values per pixel in the phase planes: x (3), y (3), albedo (3), normal
 /// (3), variance, standard deviation.
 const PHASE_VALUES: usize = 14;
@@ -266,29 +276,40 @@ fn phase_len(width: usize) -> usize {
 #[inline(always)]
 fn fill_phases(inp: &RegressionInputs<'_>, sy: usize, ph: &mut [f32], len: usize, m0: usize, m1: usize) {
     let w = inp.x.width();
+    let rows: [&[f32]; PHASE_VALUES - 1] = [
+        inp.x.row(0, sy),
+        inp.x.row(1, sy),
+        inp.x.row(2, sy),
+        inp.y.row(0, sy),
+        inp.y.row(1, sy),
+        inp.y.row(2, sy),
+        inp.albedo.row(0, sy),
+        inp.albedo.row(1, sy),
+        inp.albedo.row(2, sy),
+        inp.normal.row(0, sy),
+        inp.normal.row(1, sy),
+        inp.normal.row(2, sy),
+        inp.var.row(0, sy),
+    ];
+    let mut idx = [0usize; LANES + 4];
+    let n = m1 - m0;
     for p in 0..SPARSITY {
-        for m in m0..m1 {
-            let x = mirror(SPARSITY as isize * (m as isize - 2) + p as isize, w);
-            let var = inp.var.row(0, sy)[x];
-            let vals = [
-                inp.x.row(0, sy)[x],
-                inp.x.row(1, sy)[x],
-                inp.x.row(2, sy)[x],
-                inp.y.row(0, sy)[x],
-                inp.y.row(1, sy)[x],
-                inp.y.row(2, sy)[x],
-                inp.albedo.row(0, sy)[x],
-                inp.albedo.row(1, sy)[x],
-                inp.albedo.row(2, sy)[x],
-                inp.normal.row(0, sy)[x],
-                inp.normal.row(1, sy)[x],
-                inp.normal.row(2, sy)[x],
-                var,
-                libm::sqrtf(var.max(0.0)),
-            ];
-            for (v, &val) in vals.iter().enumerate() {
-                ph[(v * SPARSITY + p) * len + m] = val;
+        for (t, ix) in idx[..n].iter_mut().enumerate() {
+            let x = SPARSITY as isize * ((m0 + t) as isize - 2) + p as isize;
+            // One reflection covers the window's reach on images wider than it.
+            *ix = if x >= 0 && (x as usize) < w { x as usize } else { mirror(x, w) };
+        }
+        for (v, row) in rows.iter().enumerate() {
+            let dst = &mut ph[(v * SPARSITY + p) * len + m0..(v * SPARSITY + p) * len + m1];
+            for (d, &x) in dst.iter_mut().zip(&idx[..n]) {
+                *d = row[x];
             }
+        }
+        let (vars, sds) = ph.split_at_mut((PHASE_VALUES - 1) * SPARSITY * len);
+        let var = &vars[(12 * SPARSITY + p) * len + m0..(12 * SPARSITY + p) * len + m1];
+        let sd = &mut sds[p * len + m0..p * len + m1];
+        for (d, &v) in sd.iter_mut().zip(var) {
+            *d = libm::sqrtf(v.max(0.0));
         }
     }
 }
@@ -333,7 +354,9 @@ fn solve_row(inp: &RegressionInputs<'_>, j: usize, dst: &mut [f32], ph: &mut [f3
             for dx in -r..=r {
                 let (q, p) = (dx.div_euclid(SPARSITY as isize), dx.rem_euclid(SPARSITY as isize) as usize);
                 let at = (i0 as isize + q + 2) as usize;
-                let v = |k: usize| -> &[f32; LANES] {
+                // Copied out of the phase planes: values the compiler knows
+                // alias nothing, so that the lane loops below vectorise.
+                let v = |k: usize| -> [f32; LANES] {
                     let b = (k * SPARSITY + p) * len + at;
                     ph[b..b + LANES].try_into().expect("inside the phase plane")
                 };
@@ -374,8 +397,8 @@ fn solve_row(inp: &RegressionInputs<'_>, j: usize, dst: &mut [f32], ph: &mut [f3
                         shared[t][l] += wc[a][l] * col[b][l];
                     }
                 }
-                let ys = [y0, y1, y2];
-                let als = [a0, a1, a2];
+                let ys = [&y0, &y1, &y2];
+                let als = [&a0, &a1, &a2];
                 for k in 0..3 {
                     for l in 0..LANES {
                         col[1][l] = e[k][l] * inv[l];
@@ -388,9 +411,10 @@ fn solve_row(inp: &RegressionInputs<'_>, j: usize, dst: &mut [f32], ph: &mut [f3
                             own[k][t][l] += wc[a][l] * col[b][l];
                         }
                     }
+                    let yk: [f32; LANES] = *ys[k];
                     for pp in 0..COEFFS {
                         for l in 0..LANES {
-                            rhs[k][pp][l] += wc[pp][l] * ys[k][l];
+                            rhs[k][pp][l] += wc[pp][l] * yk[l];
                         }
                     }
                 }
@@ -619,33 +643,42 @@ fn regression_body(args: RegressionArgs<'_, '_, '_, '_>) {
                         e[v * ew + at..v * ew + at + LANES].try_into().expect("inside the expanded row")
                     };
                     let valid = ev(EXPANDED - 1);
+                    // q = -2 reaches 8 px only from pixels on a centre column
+                    // (x0 is a multiple of 4): a 0/1 factor per lane keeps
+                    // the loop free of branches, so that it vectorises.
+                    let near: &[f32; LANES] = if q == -2 { &ON_CENTRE } else { &[1.0; LANES] };
+                    // Every row the lane loops read, bound before them (no
+                    // bounds checks inside: the loops vectorise).
+                    let (p0, p1, p2) = (pv(0), pv(1), pv(2));
+                    let (e0, e1, e2) = (ev(0), ev(1), ev(2));
+                    let (pvar, evar, psd, esd) = (pv(9), ev(9), pv(10), ev(10));
                     let mut wt = [0.0f32; LANES];
                     let mut inv = [0.0f32; LANES];
                     for l in 0..LANES {
-                        let mut d = 0.0f32;
-                        for k in 0..3 {
-                            let t = pv(k)[l] - ev(k)[l];
-                            d += t * t;
-                        }
-                        let near = q != -2 || (x0 + l) % SPARSITY == 0;
-                        let wgt = exp_vec(-d / (ev(9)[l] + pv(9)[l] + 1e-4)) + 1e-7;
-                        wt[l] = if near { valid[l] * wgt } else { 0.0 };
-                        inv[l] = 1.0 / (ev(10)[l] + pv(10)[l] + 0.01);
+                        let (t0, t1, t2) = (p0[l] - e0[l], p1[l] - e1[l], p2[l] - e2[l]);
+                        let d = t0 * t0 + t1 * t1 + t2 * t2;
+                        let wgt = exp_vec(-d / (evar[l] + pvar[l] + 1e-4)) + 1e-7;
+                        wt[l] = near[l] * valid[l] * wgt;
+                        inv[l] = 1.0 / (esd[l] + psd[l] + 0.01);
                     }
                     for l in 0..LANES {
                         wsum[l] += wt[l];
                     }
+                    let (pn0, pn1, pn2) = (pv(6), pv(7), pv(8));
+                    let (en0, en1, en2) = (ev(6), ev(7), ev(8));
                     for k in 0..3 {
-                        let b = |t: usize| ev(11 + k * COEFFS + t);
+                        let b: [&[f32; LANES]; COEFFS] = core::array::from_fn(|t| ev(11 + k * COEFFS + t));
+                        let (pk, ek, pa, ea) = (pv(k), ev(k), pv(3 + k), ev(3 + k));
+                        let ak = &mut acc[k];
                         for l in 0..LANES {
                             let mut pred = 0.0f32;
-                            pred += b(0)[l] * 1.0;
-                            pred += b(1)[l] * ((pv(k)[l] - ev(k)[l]) * inv[l]);
-                            pred += b(2)[l] * (pv(3 + k)[l] - ev(3 + k)[l]);
-                            pred += b(3)[l] * (pv(6)[l] - ev(6)[l]);
-                            pred += b(4)[l] * (pv(7)[l] - ev(7)[l]);
-                            pred += b(5)[l] * (pv(8)[l] - ev(8)[l]);
-                            acc[k][l] += wt[l] * pred;
+                            pred += b[0][l] * 1.0;
+                            pred += b[1][l] * ((pk[l] - ek[l]) * inv[l]);
+                            pred += b[2][l] * (pa[l] - ea[l]);
+                            pred += b[3][l] * (pn0[l] - en0[l]);
+                            pred += b[4][l] * (pn1[l] - en1[l]);
+                            pred += b[5][l] * (pn2[l] - en2[l]);
+                            ak[l] += wt[l] * pred;
                         }
                     }
                 }
