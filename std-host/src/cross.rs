@@ -113,6 +113,13 @@ struct Bufs {
     /// Warped output, pilot A, pilot B (9 planes).
     warped: Vec<f32>,
     valid: Vec<f32>,
+    /// The reprojection's current colour (unused: the blend takes the
+    /// history whole), its history (1e30: never capped) and counts out.
+    zeros: Vec<f32>,
+    big: Vec<f32>,
+    hist: Vec<f32>,
+    /// The success mask eroded along rows.
+    row_ok: Vec<f32>,
     albedo: Vec<f32>,
     normal: Vec<f32>,
     /// The network input at the padded size.
@@ -153,13 +160,13 @@ fn require_b(f: &Frame) -> Result<()> {
 
 impl Cross {
     /// Memory per frame (see [`crate::memory`]), in f32 whatever the
-    /// precision: the per-frame buffers (54 planes, the network input at the
-    /// padded size), what the next frame reprojects (output and pilots,
-    /// normal, position: 15), and the online step's workspaces, one per
-    /// strip of `crop_h` padded rows (every U-Net tensor and its gradient,
-    /// the filter's 9 + 6 planes per crop), kept from frame to frame; during
-    /// a frame the reprojection's temporaries, then the next frame's history
-    /// beside this one's and the output.
+    /// precision: the per-frame buffers (51 planes with the reprojection's,
+    /// the network input at the padded size), what the next frame
+    /// reprojects (output and pilots, normal, position: 15), and the online
+    /// step's workspaces, one per strip of `crop_h` padded rows (every U-Net
+    /// tensor and its gradient, the filter's 9 + 6 planes per crop), kept
+    /// from frame to frame; during a frame the next frame's history beside
+    /// this one's and the output.
     pub fn footprint(info: &crate::frame::FrameInfo) -> crate::memory::Footprint {
         let (w, h) = (info.width.max(1), info.height.max(1));
         let (wp, hp) = (w.div_ceil(4) * 4, h.div_ceil(4) * 4);
@@ -168,9 +175,10 @@ impl Cross {
         let per_px = |floats: usize| (4 * floats as u64).div_ceil((w * h) as u64);
         let workspaces = per_px(strips.len() * crop);
         let input = per_px(CIN * wp * hp);
-        let kept = 4 * (39 + 15) + input + workspaces;
+        // 39 per-frame planes, 12 of the reprojection, 15 kept for the next frame.
+        let kept = 4 * (39 + 12 + 15) + input + workspaces;
         let mut l = crate::memory::Ledger::default();
-        l.alloc(kept).temp(4 * 5).alloc(4 * 15).alloc(12);
+        l.alloc(kept).alloc(4 * 15).alloc(12);
         crate::memory::Footprint { kept, peak: l.peak(), scratch: 0 }
     }
 
@@ -325,6 +333,10 @@ impl Denoiser for Cross {
             pb: vec![0.0; 3 * n],
             warped: vec![0.0; 9 * n],
             valid: vec![0.0; n],
+            zeros: vec![0.0; 9 * n],
+            big: vec![1e30; n],
+            hist: vec![0.0; n],
+            row_ok: vec![0.0; n],
             albedo: vec![0.0; 3 * n],
             normal: vec![0.0; 3 * n],
             input: vec![0.0; CIN * wp * hp],
@@ -379,43 +391,45 @@ impl Denoiser for Cross {
             if motion.is_none() && (position.is_none() || prev.position.is_none()) {
                 return Ok(());
             }
-            let zeros = vec![0.0f32; 3 * n];
-            let big = vec![1e30f32; n];
-            let mut hist = vec![0.0f32; n];
-            for k in 0..3 {
-                let inp = TemporalInputs {
-                    color: View::new(&zeros, 3, w, h)?,
-                    normal,
-                    position,
-                    motion,
-                    prev_color: View::new(&prev.colors[3 * k * n..3 * (k + 1) * n], 3, w, h)?,
-                    prev_normal: prev.normal.as_deref().map(|v| View::new(v, 3, w, h)).transpose()?,
-                    prev_position: prev.position.as_deref().map(|v| View::new(v, 3, w, h)).transpose()?,
-                    prev_history: View::new(&big, 1, w, h)?,
-                };
-                let params = self.params;
-                let out = &mut bufs.warped[3 * k * n..3 * (k + 1) * n];
-                ctx.pool.bands2(
-                    ViewMut::new(out, 3, w, h)?,
-                    ViewMut::new(&mut hist, 1, w, h)?,
-                    1,
-                    &mut ctx.scratch,
-                    0,
-                    |band, hb, y0, _| temporal::accumulate::<F32>(isa, &inp, &params, band, hb, y0),
-                )?;
-            }
+            // Output and both pilots (9 planes) in one pass: the geometry
+            // tests and the bilinear taps are shared.
+            let inp = TemporalInputs {
+                color: View::new(&bufs.zeros, 9, w, h)?,
+                normal,
+                position,
+                motion,
+                prev_color: View::new(&prev.colors, 9, w, h)?,
+                prev_normal: prev.normal.as_deref().map(|v| View::new(v, 3, w, h)).transpose()?,
+                prev_position: prev.position.as_deref().map(|v| View::new(v, 3, w, h)).transpose()?,
+                prev_history: View::new(&bufs.big, 1, w, h)?,
+            };
+            let params = self.params;
+            ctx.pool.bands2(
+                ViewMut::new(&mut bufs.warped, 9, w, h)?,
+                ViewMut::new(&mut bufs.hist, 1, w, h)?,
+                1,
+                &mut ctx.scratch,
+                0,
+                |band, hb, y0, _| temporal::accumulate::<F32>(isa, &inp, &params, band, hb, y0),
+            )?;
             // Valid where the pixel and its 3x3 neighbours (inside the
             // image) all reprojected: the authors' erosion of the success
-            // mask against bilinear-reprojection artefacts at its edges.
-            for y in 0..h {
+            // mask against bilinear-reprojection artefacts at its edges
+            // (a minimum along rows, then along columns).
+            for (ok, hr) in bufs.row_ok.chunks_exact_mut(w).zip(bufs.hist.chunks_exact(w)) {
                 for x in 0..w {
-                    let mut ok = true;
-                    for yy in y.saturating_sub(1)..(y + 2).min(h) {
-                        for xx in x.saturating_sub(1)..(x + 2).min(w) {
-                            ok &= hist[yy * w + xx] > 0.0;
-                        }
+                    let (a, b) = (x.saturating_sub(1), (x + 2).min(w));
+                    ok[x] = if hr[a..b].iter().all(|&v| v > 0.0) { 1.0 } else { 0.0 };
+                }
+            }
+            for y in 0..h {
+                let (a, b) = (y.saturating_sub(1), (y + 2).min(h));
+                let out = &mut bufs.valid[y * w..(y + 1) * w];
+                out.copy_from_slice(&bufs.row_ok[a * w..(a + 1) * w]);
+                for yy in a + 1..b {
+                    for (o, &v) in out.iter_mut().zip(&bufs.row_ok[yy * w..(yy + 1) * w]) {
+                        *o = o.min(v);
                     }
-                    bufs.valid[y * w + x] = if ok { 1.0 } else { 0.0 };
                 }
             }
             Ok(())

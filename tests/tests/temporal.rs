@@ -21,6 +21,8 @@ impl Lcg {
 }
 
 struct Case {
+    /// Colour channels.
+    ch: usize,
     w: usize,
     h: usize,
     color: Img,
@@ -38,17 +40,23 @@ struct Case {
 /// the unique nearest), each previous pixel either agreeing with the
 /// current geometry (off by 0.1 of the limits) or not (3 times them).
 fn case(w: usize, h: usize, seed: u64) -> Case {
+    case_ch(3, w, h, seed)
+}
+
+/// [`case`] with `ch` colour channels (the geometry stays 3 planes).
+fn case_ch(ch: usize, w: usize, h: usize, seed: u64) -> Case {
     let mut r = Lcg(seed);
     let params =
         TemporalParams { pos_limit: 0.5, normal_limit: 0.3, alpha_min: 0.2, history_cap: 16.0, search_radius: 2 };
     let mut c = Case {
+        ch,
         w,
         h,
-        color: Img::zeros(3, w, h),
+        color: Img::zeros(ch, w, h),
         normal: Img::zeros(3, w, h),
         position: Img::zeros(3, w, h),
         motion: Img::zeros(2, w, h),
-        prev_color: Img::zeros(3, w, h),
+        prev_color: Img::zeros(ch, w, h),
         prev_normal: Img::zeros(3, w, h),
         prev_position: Img::zeros(3, w, h),
         prev_history: Img::zeros(1, w, h),
@@ -62,9 +70,11 @@ fn case(w: usize, h: usize, seed: u64) -> Case {
                 let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
                 [v[0] / l, v[1] / l, v[2] / l]
             };
+            for k in 0..ch {
+                *c.color.at_mut(k, y, x) = (r.next() * 4.0) as f32;
+                *c.prev_color.at_mut(k, y, x) = (r.next() * 4.0) as f32;
+            }
             for ch in 0..3 {
-                *c.color.at_mut(ch, y, x) = (r.next() * 4.0) as f32;
-                *c.prev_color.at_mut(ch, y, x) = (r.next() * 4.0) as f32;
                 *c.position.at_mut(ch, y, x) = base[ch] as f32;
                 *c.normal.at_mut(ch, y, x) = n[ch] as f32;
             }
@@ -108,7 +118,7 @@ fn oracle(c: &Case, motion: bool) -> (Vec<f64>, Vec<f64>) {
         prev_normal: Some(&pn),
         prev_position: Some(&pp),
         prev_history: &ph,
-        c: 3,
+        c: c.ch,
         w: c.w,
         h: c.h,
     };
@@ -135,18 +145,18 @@ fn kernel<P: TemporalPrecision>(
             .collect();
     let v = |i: usize, ch: usize| View::new(&bufs[i], ch, w, h).unwrap();
     let inp = TemporalInputs {
-        color: v(0, 3),
+        color: v(0, c.ch),
         normal: Some(v(1, 3)),
         position: Some(v(2, 3)),
         motion: motion.then(|| v(3, 2)),
-        prev_color: v(4, 3),
+        prev_color: v(4, c.ch),
         prev_normal: Some(v(5, 3)),
         prev_position: Some(v(6, 3)),
         prev_history: v(7, 1),
     };
-    let mut out = vec![P::Store::default(); 3 * w * h];
+    let mut out = vec![P::Store::default(); c.ch * w * h];
     let mut hist = vec![P::Store::default(); w * h];
-    let mut ov = ViewMut::new(&mut out, 3, w, h).unwrap();
+    let mut ov = ViewMut::new(&mut out, c.ch, w, h).unwrap();
     let mut hv = ViewMut::new(&mut hist, 1, w, h).unwrap();
     for y0 in (0..h).step_by(band) {
         let n = band.min(h - y0);
@@ -206,6 +216,18 @@ fn accumulation_matches_the_f64_oracle_at_the_widths_that_matter() {
     for (w, h) in [(1, 1), (9, 5), (17, 9), (33, 4)] {
         for motion in [true, false] {
             check(&case(w, h, (w * 31 + h) as u64), motion, 3);
+        }
+    }
+}
+
+/// Every colour channel is reprojected, however many there are (the kernels
+/// once took the history of the first four only and passed the rest
+/// through; the cross-regression denoiser reprojects nine planes at once).
+#[test]
+fn accumulation_reprojects_every_colour_channel() {
+    for ch in [1, 5, 9] {
+        for motion in [true, false] {
+            check(&case_ch(ch, 13, 7, 40 + ch as u64), motion, 2);
         }
     }
 }

@@ -60,15 +60,13 @@ pub(crate) fn accumulate(
     for yo in 0..color.height() {
         let y = y0 + yo;
         for x in 0..w {
-            let mut wsum = 0i64;
-            let mut hist = 0i64;
-            let mut prev = [0i64; 4];
+            // The accepted taps (at most the four bilinear ones), then their
+            // sums: any number of colour channels.
+            let mut taps = [(0usize, 0usize, 0i64); 4];
+            let mut nt = 0;
             let mut take = |py: usize, px: usize, wt: i64| {
-                wsum += wt;
-                hist += wt * at(&inp.prev_history, 0, py, px);
-                for (c, pv) in prev.iter_mut().enumerate().take(ch.min(4)) {
-                    *pv += wt * at(&inp.prev_color, c, py, px);
-                }
+                taps[nt] = (py, px, wt);
+                nt += 1;
             };
             if let Some(m) = &inp.motion {
                 let fm = m.frac().clamp(0, 14) as i32;
@@ -109,12 +107,19 @@ pub(crate) fn accumulate(
                     }
                 }
             }
+            let taps = &taps[..nt];
+            let (mut wsum, mut hist) = (0i64, 0i64);
+            for &(py, px, wt) in taps {
+                wsum += wt;
+                hist += wt * at(&inp.prev_history, 0, py, px);
+            }
             if wsum > 0 {
                 let n = div_round(hist, wsum).max(0); // Q.fh
                 let alpha = div_round(ONE << fh, n + (1i64 << fh)).max(amin).min(ONE); // Q.14
                 for c in 0..ch {
                     let cur = at(&inp.color, c, y, x);
-                    let pv = if c < 4 { rescale(div_round(prev[c], wsum), fpc, fc) } else { cur };
+                    let prev: i64 = taps.iter().map(|&(py, px, wt)| wt * at(&inp.prev_color, c, py, px)).sum();
+                    let pv = rescale(div_round(prev, wsum), fpc, fc);
                     let v = shr_round(alpha * cur + (ONE - alpha) * pv, 14);
                     color.row_mut(c, yo)[x] = sat16(rescale(v, fc, fo));
                 }

@@ -7,7 +7,6 @@ use crate::precision::FloatElement;
 use crate::real::Real;
 use crate::view::{View, ViewMut};
 
-const MAX_C: usize = 4;
 
 fn get<S: FloatElement, A: Real>(v: &View<'_, S>, c: usize, y: usize, x: usize) -> A {
     A::of(v.at(c, y, x).to_f32())
@@ -54,20 +53,17 @@ pub(crate) fn accumulate<S: FloatElement, A: Real>(
     y0: usize,
 ) {
     let (w, h, ch) = (inp.color.width(), inp.color.height(), inp.color.channels());
-    let chm = ch.min(MAX_C);
     for yo in 0..color.height() {
         let y = y0 + yo;
         for x in 0..w {
             // Gather the reprojected colour and history.
-            let mut wsum = A::ZERO;
-            let mut hist = A::ZERO;
-            let mut prev = [A::ZERO; MAX_C];
+            // The accepted taps (at most the four bilinear ones), then their
+            // sums: any number of colour channels.
+            let mut taps = [(0usize, 0usize, A::ZERO); 4];
+            let mut nt = 0;
             let mut take = |py: usize, px: usize, wt: A| {
-                wsum += wt;
-                hist += wt * get::<S, A>(&inp.prev_history, 0, py, px);
-                for (c, pv) in prev.iter_mut().enumerate().take(chm) {
-                    *pv += wt * get::<S, A>(&inp.prev_color, c, py, px);
-                }
+                taps[nt] = (py, px, wt);
+                nt += 1;
             };
             if let Some(m) = &inp.motion {
                 let (mx, my): (f32, f32) = (get::<S, f32>(m, 0, y, x), get::<S, f32>(m, 1, y, x));
@@ -110,13 +106,23 @@ pub(crate) fn accumulate<S: FloatElement, A: Real>(
                     }
                 }
             }
+            let taps = &taps[..nt];
+            let (mut wsum, mut hist) = (A::ZERO, A::ZERO);
+            for &(py, px, wt) in taps {
+                wsum += wt;
+                hist += wt * get::<S, A>(&inp.prev_history, 0, py, px);
+            }
             let cur = |c: usize| get::<S, A>(&inp.color, c, y, x);
             if wsum > A::ZERO {
                 let inv = A::ONE / wsum;
                 let n = (hist * inv).fmax(A::ZERO);
                 let alpha = (A::ONE / (n + A::ONE)).fmax(A::of(p.alpha_min));
                 for c in 0..ch {
-                    let pv = if c < chm { prev[c] * inv } else { cur(c) };
+                    let mut pv = A::ZERO;
+                    for &(py, px, wt) in taps {
+                        pv += wt * get::<S, A>(&inp.prev_color, c, py, px);
+                    }
+                    let pv = pv * inv;
                     let v = alpha * cur(c) + (A::ONE - alpha) * pv;
                     color.row_mut(c, yo)[x] = S::from_f32(v.f32());
                 }
