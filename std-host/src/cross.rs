@@ -417,9 +417,9 @@ impl Denoiser for Cross {
             // mask against bilinear-reprojection artefacts at its edges
             // (a minimum along rows, then along columns).
             for (ok, hr) in bufs.row_ok.chunks_exact_mut(w).zip(bufs.hist.chunks_exact(w)) {
-                for x in 0..w {
+                for (x, o) in ok.iter_mut().enumerate() {
                     let (a, b) = (x.saturating_sub(1), (x + 2).min(w));
-                    ok[x] = if hr[a..b].iter().all(|&v| v > 0.0) { 1.0 } else { 0.0 };
+                    *o = if hr[a..b].iter().all(|&v| v > 0.0) { 1.0 } else { 0.0 };
                 }
             }
             for y in 0..h {

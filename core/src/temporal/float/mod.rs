@@ -7,7 +7,6 @@ use crate::precision::FloatElement;
 use crate::real::Real;
 use crate::view::{View, ViewMut};
 
-
 fn get<S: FloatElement, A: Real>(v: &View<'_, S>, c: usize, y: usize, x: usize) -> A {
     A::of(v.at(c, y, x).to_f32())
 }
