@@ -7,7 +7,9 @@
 //!    from A fitted to B gives pilot A, and the other way round pilot B;
 //! 2. reprojection of the previous output and pilots (the core's temporal
 //!    reprojection with the blend forced to the history: motion vectors, or
-//!    world positions, with its position and normal tests);
+//!    world positions, with its position and normal tests), the success mask
+//!    eroded over 3x3, and each reprojected value kept only inside the range
+//!    of its current counterpart over 7x7 (the authors' temporal screening);
 //! 3. a U-Net (3x3 ReLU convs 8,8 / 16,16 / 32,32 with 2x2 max pools,
 //!    nearest upsampling with skip concatenation back to 16,16 and 8, a 1x1
 //!    head to 6 raw outputs) on 15 planes: both pilots, the warped previous
@@ -120,6 +122,11 @@ struct Bufs {
     hist: Vec<f32>,
     /// The success mask eroded along rows.
     row_ok: Vec<f32>,
+    /// The screening's window minimum and maximum, their row passes, and the
+    /// current plane they are taken of (5 planes).
+    window: Vec<f32>,
+    /// Which parts of the history the screening keeps, per pixel.
+    keep: Vec<u8>,
     albedo: Vec<f32>,
     normal: Vec<f32>,
     /// The network input at the padded size.
@@ -160,7 +167,7 @@ fn require_b(f: &Frame) -> Result<()> {
 
 impl Cross {
     /// Memory per frame (see [`crate::memory`]), in f32 whatever the
-    /// precision: the per-frame buffers (51 planes with the reprojection's,
+    /// precision: the per-frame buffers (56 planes with the reprojection's,
     /// the network input at the padded size), what the next frame
     /// reprojects (output and pilots, normal, position: 15), and the online
     /// step's workspaces, one per strip of `crop_h` padded rows (every U-Net
@@ -175,8 +182,9 @@ impl Cross {
         let per_px = |floats: usize| (4 * floats as u64).div_ceil((w * h) as u64);
         let workspaces = per_px(strips.len() * crop);
         let input = per_px(CIN * wp * hp);
-        // 39 per-frame planes, 12 of the reprojection, 15 kept for the next frame.
-        let kept = 4 * (39 + 12 + 15) + input + workspaces;
+        // 39 per-frame planes, 17 of the reprojection and screening (and a
+        // byte per pixel), 15 kept for the next frame.
+        let kept = 4 * (39 + 17 + 15) + 1 + input + workspaces;
         let mut l = crate::memory::Ledger::default();
         l.alloc(kept).alloc(4 * 15).alloc(12);
         crate::memory::Footprint { kept, peak: l.peak(), scratch: 0 }
@@ -274,6 +282,89 @@ impl Cross {
     }
 }
 
+/// Side of the window whose range of current values screens the history
+/// (the authors' temporal screening).
+const SCREEN_WINDOW: usize = 7;
+
+/// Minimum and maximum of `src` (one `w x h` plane) over the
+/// `SCREEN_WINDOW`-wide square around each pixel (inside the image), by a
+/// pass along rows into `tmin`/`tmax` and one along columns.
+#[allow(clippy::too_many_arguments)]
+fn window_range(src: &[f32], w: usize, h: usize, tmin: &mut [f32], tmax: &mut [f32], mn: &mut [f32], mx: &mut [f32]) {
+    let r = SCREEN_WINDOW / 2;
+    for y in 0..h {
+        let row = &src[y * w..(y + 1) * w];
+        for x in 0..w {
+            let span = &row[x.saturating_sub(r)..(x + r + 1).min(w)];
+            tmin[y * w + x] = span.iter().fold(f32::INFINITY, |a, &v| a.min(v));
+            tmax[y * w + x] = span.iter().fold(f32::NEG_INFINITY, |a, &v| a.max(v));
+        }
+    }
+    for y in 0..h {
+        let (a, b) = (y.saturating_sub(r), (y + r + 1).min(h));
+        mn[y * w..(y + 1) * w].copy_from_slice(&tmin[a * w..(a + 1) * w]);
+        mx[y * w..(y + 1) * w].copy_from_slice(&tmax[a * w..(a + 1) * w]);
+        for yy in a + 1..b {
+            for x in 0..w {
+                mn[y * w + x] = mn[y * w + x].min(tmin[yy * w + x]);
+                mx[y * w + x] = mx[y * w + x].max(tmax[yy * w + x]);
+            }
+        }
+    }
+}
+
+/// The history the filter and the loss read. Where the reprojection failed
+/// (`valid` 0), the previous output is replaced by the mean of the current
+/// pilots and the previous pilots by the current ones. Elsewhere each of the
+/// three (output against the pilots' mean, pilot A against pilot A, pilot B
+/// against pilot B) is kept only if every channel lies strictly inside the
+/// range of its current counterpart over the 7x7 window around the pixel,
+/// else replaced by it; a replaced output also clears `valid`, so the
+/// filter does not blend it (the authors' temporal screening).
+fn screen(b: &mut Bufs, w: usize, h: usize) {
+    let n = w * h;
+    let (mean, rest) = b.window.split_at_mut(n);
+    let (tmin, rest) = rest.split_at_mut(n);
+    let (tmax, rest) = rest.split_at_mut(n);
+    let (mn, mx) = rest.split_at_mut(n);
+    // Which of the three keep their history (bit 0 output, 1 pilot A, 2 pilot B).
+    let keep = &mut b.keep;
+    for (k, &v) in keep.iter_mut().zip(&b.valid) {
+        *k = if v > 0.0 { 0b111 } else { 0 };
+    }
+    for c in 0..3 {
+        for (m, (&a, &bb)) in mean.iter_mut().zip(b.pa[c * n..(c + 1) * n].iter().zip(&b.pb[c * n..(c + 1) * n])) {
+            *m = 0.5 * (a + bb);
+        }
+        for (g, cur) in [(0usize, &*mean), (1, &b.pa[c * n..(c + 1) * n]), (2, &b.pb[c * n..(c + 1) * n])] {
+            window_range(cur, w, h, tmin, tmax, mn, mx);
+            let prev = &b.warped[(3 * g + c) * n..(3 * g + c + 1) * n];
+            for i in 0..n {
+                if !(prev[i] > mn[i] && prev[i] < mx[i]) {
+                    keep[i] &= !(1 << g);
+                }
+            }
+        }
+    }
+    for (i, &k) in b.keep.iter().enumerate() {
+        if k & 1 == 0 {
+            b.valid[i] = 0.0;
+        }
+        for c in 0..3 {
+            let (a, bb) = (b.pa[c * n + i], b.pb[c * n + i]);
+            if k & 1 == 0 {
+                b.warped[c * n + i] = 0.5 * (a + bb);
+            }
+            if k & 2 == 0 {
+                b.warped[(3 + c) * n + i] = a;
+            }
+            if k & 4 == 0 {
+                b.warped[(6 + c) * n + i] = bb;
+            }
+        }
+    }
+}
+
 /// `log1p(max(v, 0))`.
 fn log1p_into(src: &[f32], dst: &mut [f32]) {
     for (d, &s) in dst.iter_mut().zip(src) {
@@ -337,6 +428,8 @@ impl Denoiser for Cross {
             big: vec![1e30; n],
             hist: vec![0.0; n],
             row_ok: vec![0.0; n],
+            window: vec![0.0; 5 * n],
+            keep: vec![0; n],
             albedo: vec![0.0; 3 * n],
             normal: vec![0.0; 3 * n],
             input: vec![0.0; CIN * wp * hp],
@@ -434,18 +527,9 @@ impl Denoiser for Cross {
             }
             Ok(())
         })?;
-        // Where nothing reprojects: the previous output stands in as the mean
-        // of the pilots, the previous pilots as the current ones.
-        for i in 0..n {
-            if bufs.valid[i] == 0.0 {
-                for c in 0..3 {
-                    let (a, b) = (bufs.pa[c * n + i], bufs.pb[c * n + i]);
-                    bufs.warped[c * n + i] = 0.5 * (a + b);
-                    bufs.warped[(3 + c) * n + i] = a;
-                    bufs.warped[(6 + c) * n + i] = b;
-                }
-            }
-        }
+        // Where nothing reprojects, the current values stand in; where it
+        // does, the history is screened against the current pilots.
+        t.time("reprojection", || screen(bufs, w, h));
         // 3. The network input, padded to a multiple of 4.
         {
             let parts: [&[f32]; 5] = [&bufs.pa, &bufs.pb, &bufs.warped[..3 * n], &bufs.albedo, &bufs.normal];
@@ -568,5 +652,120 @@ impl Denoiser for Cross {
             self.save(&path)?;
         }
         Ok(result)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn bufs(w: usize, h: usize) -> Bufs {
+        let n = w * h;
+        let z = |c: usize| vec![0.0f32; c * n];
+        Bufs {
+            a: z(3),
+            b: z(3),
+            var_a: z(1),
+            var_b: z(1),
+            pa: z(3),
+            pb: z(3),
+            warped: z(9),
+            valid: z(1),
+            zeros: z(9),
+            big: z(1),
+            hist: z(1),
+            row_ok: z(1),
+            window: z(5),
+            keep: vec![0; n],
+            albedo: z(3),
+            normal: z(3),
+            input: Vec::new(),
+            out: z(9),
+        }
+    }
+
+    /// The window range against a direct minimum and maximum over the
+    /// clipped 7x7 square, at sizes smaller and larger than the window.
+    #[test]
+    fn window_range_is_the_clipped_7x7_min_and_max() {
+        for (w, h) in [(1, 1), (3, 9), (11, 8)] {
+            let n = w * h;
+            let src: Vec<f32> = (0..n).map(|i| ((i * 37 + 11) % 23) as f32 - 7.0).collect();
+            let (mut t1, mut t2, mut mn, mut mx) = (vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+            window_range(&src, w, h, &mut t1, &mut t2, &mut mn, &mut mx);
+            for y in 0..h {
+                for x in 0..w {
+                    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+                    for yy in y.saturating_sub(3)..(y + 4).min(h) {
+                        for xx in x.saturating_sub(3)..(x + 4).min(w) {
+                            lo = lo.min(src[yy * w + xx]);
+                            hi = hi.max(src[yy * w + xx]);
+                        }
+                    }
+                    assert_eq!((mn[y * w + x], mx[y * w + x]), (lo, hi), "{w}x{h} at ({x}, {y})");
+                }
+            }
+        }
+    }
+
+    /// Screening keeps a reprojected value strictly inside the current
+    /// range, replaces one outside it (or on its edge) by the current value,
+    /// clears `valid` only when the output is replaced, and replaces all
+    /// three where the reprojection failed.
+    #[test]
+    fn screening_keeps_history_inside_the_current_range_only() {
+        let (w, h) = (9, 9);
+        let n = w * h;
+        let mut b = bufs(w, h);
+        // Current pilots vary over [0, 2) (A) and [1, 3) (B) across the image.
+        for c in 0..3 {
+            for i in 0..n {
+                b.pa[c * n + i] = (i % 7) as f32 * 0.3;
+                b.pb[c * n + i] = 1.0 + (i % 5) as f32 * 0.4;
+            }
+        }
+        b.valid.fill(1.0);
+        let centre = 4 * w + 4;
+        let (inside_out, inside_a, inside_b) = (1.2f32, 0.5f32, 1.5f32);
+        for c in 0..3 {
+            for i in 0..n {
+                b.warped[c * n + i] = inside_out;
+                b.warped[(3 + c) * n + i] = inside_a;
+                b.warped[(6 + c) * n + i] = inside_b;
+            }
+        }
+        // At the centre: the output far above every current value, pilot A
+        // on its range's minimum (not strictly inside), pilot B inside.
+        b.warped[2 * n + centre] = 50.0;
+        b.warped[3 * n + centre] = 0.0;
+        // A pixel whose reprojection failed.
+        let failed = 0;
+        b.valid[failed] = 0.0;
+        screen(&mut b, w, h);
+        for i in 0..n {
+            let mean = |c: usize| 0.5 * (b.pa[c * n + i] + b.pb[c * n + i]);
+            if i == failed {
+                assert_eq!(b.valid[i], 0.0);
+                for c in 0..3 {
+                    assert_eq!(b.warped[c * n + i], mean(c));
+                    assert_eq!(b.warped[(3 + c) * n + i], b.pa[c * n + i]);
+                    assert_eq!(b.warped[(6 + c) * n + i], b.pb[c * n + i]);
+                }
+            } else if i == centre {
+                assert_eq!(b.valid[i], 0.0, "the output was replaced");
+                for c in 0..3 {
+                    assert_eq!(b.warped[c * n + i], mean(c));
+                    assert_eq!(b.warped[(3 + c) * n + i], b.pa[c * n + i], "on the edge is outside");
+                    assert_eq!(b.warped[(6 + c) * n + i], inside_b);
+                }
+            } else {
+                assert_eq!(b.valid[i], 1.0, "pixel {i}");
+                for c in 0..3 {
+                    assert_eq!(b.warped[c * n + i], inside_out, "pixel {i}");
+                    assert_eq!(b.warped[(3 + c) * n + i], inside_a, "pixel {i}");
+                    assert_eq!(b.warped[(6 + c) * n + i], inside_b, "pixel {i}");
+                }
+            }
+        }
     }
 }
