@@ -40,6 +40,7 @@ use crate::frame::{Buffer, Frame};
 use crate::methods::{scene_scale, Ctx, Denoiser, Plan, Timings, POSITION_TOLERANCE};
 use crate::nn::weights::{self, File, Form};
 use crate::nn::{Conv, Layer, Net, NetDesc, Trainer};
+use crate::par::Pool;
 
 /// Network input planes.
 pub const CIN: usize = 15;
@@ -288,29 +289,61 @@ const SCREEN_WINDOW: usize = 7;
 
 /// Minimum and maximum of `src` (one `w x h` plane) over the
 /// `SCREEN_WINDOW`-wide square around each pixel (inside the image), by a
-/// pass along rows into `tmin`/`tmax` and one along columns.
+/// pass along rows into `tmin`/`tmax` and one along columns, each over
+/// slices (so they vectorise) and in parallel over rows.
 #[allow(clippy::too_many_arguments)]
-fn window_range(src: &[f32], w: usize, h: usize, tmin: &mut [f32], tmax: &mut [f32], mn: &mut [f32], mx: &mut [f32]) {
+fn window_range(
+    pool: &Pool,
+    src: &[f32],
+    w: usize,
+    h: usize,
+    tmin: &mut [f32],
+    tmax: &mut [f32],
+    mn: &mut [f32],
+    mx: &mut [f32],
+) {
+    use rayon::prelude::*;
     let r = SCREEN_WINDOW / 2;
-    for y in 0..h {
-        let row = &src[y * w..(y + 1) * w];
-        for x in 0..w {
-            let span = &row[x.saturating_sub(r)..(x + r + 1).min(w)];
-            tmin[y * w + x] = span.iter().fold(f32::INFINITY, |a, &v| a.min(v));
-            tmax[y * w + x] = span.iter().fold(f32::NEG_INFINITY, |a, &v| a.max(v));
-        }
-    }
-    for y in 0..h {
-        let (a, b) = (y.saturating_sub(r), (y + r + 1).min(h));
-        mn[y * w..(y + 1) * w].copy_from_slice(&tmin[a * w..(a + 1) * w]);
-        mx[y * w..(y + 1) * w].copy_from_slice(&tmax[a * w..(a + 1) * w]);
-        for yy in a + 1..b {
-            for x in 0..w {
-                mn[y * w + x] = mn[y * w + x].min(tmin[yy * w + x]);
-                mx[y * w + x] = mx[y * w + x].max(tmax[yy * w + x]);
+    pool.install(|| {
+        src.par_chunks_exact(w).zip(tmin.par_chunks_exact_mut(w).zip(tmax.par_chunks_exact_mut(w))).for_each(
+            |(row, (lo, hi))| {
+                // Interior: the window's taps as shifted slices.
+                if w > 2 * r {
+                    let m = w - 2 * r;
+                    lo[r..r + m].copy_from_slice(&row[..m]);
+                    hi[r..r + m].copy_from_slice(&row[..m]);
+                    for k in 1..SCREEN_WINDOW {
+                        for ((l, h), &v) in lo[r..r + m].iter_mut().zip(&mut hi[r..r + m]).zip(&row[k..k + m]) {
+                            *l = l.min(v);
+                            *h = h.max(v);
+                        }
+                    }
+                }
+                // The edges (and rows narrower than the window): clipped spans.
+                for x in (0..w).filter(|&x| x < r || x + r >= w) {
+                    let span = &row[x.saturating_sub(r)..(x + r + 1).min(w)];
+                    lo[x] = span.iter().fold(f32::INFINITY, |a, &v| a.min(v));
+                    hi[x] = span.iter().fold(f32::NEG_INFINITY, |a, &v| a.max(v));
+                }
+            },
+        );
+        let (tmin, tmax) = (&*tmin, &*tmax);
+        mn.par_chunks_exact_mut(w).zip(mx.par_chunks_exact_mut(w)).enumerate().for_each(|(y, (lo, hi))| {
+            let (a, b) = (y.saturating_sub(r), (y + r + 1).min(h));
+            lo.copy_from_slice(&tmin[a * w..(a + 1) * w]);
+            hi.copy_from_slice(&tmax[a * w..(a + 1) * w]);
+            for yy in a + 1..b {
+                for ((l, h), (&vl, &vh)) in lo
+                    .iter_mut()
+                    .zip(hi.iter_mut())
+                    .zip(tmin[yy * w..(yy + 1) * w].iter().zip(&tmax[yy * w..(yy + 1) * w]))
+                {
+                    *l = l.min(vl);
+                    *h = h.max(vh);
+                }
             }
-        }
-    }
+        });
+    });
 }
 
 /// The history the filter and the loss read. Where the reprojection failed
@@ -321,7 +354,7 @@ fn window_range(src: &[f32], w: usize, h: usize, tmin: &mut [f32], tmax: &mut [f
 /// range of its current counterpart over the 7x7 window around the pixel,
 /// else replaced by it; a replaced output also clears `valid`, so the
 /// filter does not blend it (the authors' temporal screening).
-fn screen(b: &mut Bufs, w: usize, h: usize) {
+fn screen(pool: &Pool, b: &mut Bufs, w: usize, h: usize) {
     let n = w * h;
     let (mean, rest) = b.window.split_at_mut(n);
     let (tmin, rest) = rest.split_at_mut(n);
@@ -337,12 +370,11 @@ fn screen(b: &mut Bufs, w: usize, h: usize) {
             *m = 0.5 * (a + bb);
         }
         for (g, cur) in [(0usize, &*mean), (1, &b.pa[c * n..(c + 1) * n]), (2, &b.pb[c * n..(c + 1) * n])] {
-            window_range(cur, w, h, tmin, tmax, mn, mx);
+            window_range(pool, cur, w, h, tmin, tmax, mn, mx);
             let prev = &b.warped[(3 * g + c) * n..(3 * g + c + 1) * n];
-            for i in 0..n {
-                if !(prev[i] > mn[i] && prev[i] < mx[i]) {
-                    keep[i] &= !(1 << g);
-                }
+            for (((k, &p), &lo), &hi) in keep.iter_mut().zip(prev).zip(&*mn).zip(&*mx) {
+                let inside = p > lo && p < hi;
+                *k &= !(u8::from(!inside) << g);
             }
         }
     }
@@ -529,7 +561,7 @@ impl Denoiser for Cross {
         })?;
         // Where nothing reprojects, the current values stand in; where it
         // does, the history is screened against the current pilots.
-        t.time("reprojection", || screen(bufs, w, h));
+        t.time("reprojection", || screen(&ctx.pool, bufs, w, h));
         // 3. The network input, padded to a multiple of 4.
         {
             let parts: [&[f32]; 5] = [&bufs.pa, &bufs.pb, &bufs.warped[..3 * n], &bufs.albedo, &bufs.normal];
@@ -692,7 +724,7 @@ mod tests {
             let n = w * h;
             let src: Vec<f32> = (0..n).map(|i| ((i * 37 + 11) % 23) as f32 - 7.0).collect();
             let (mut t1, mut t2, mut mn, mut mx) = (vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n]);
-            window_range(&src, w, h, &mut t1, &mut t2, &mut mn, &mut mx);
+            window_range(&Pool::new(2).unwrap(), &src, w, h, &mut t1, &mut t2, &mut mn, &mut mx);
             for y in 0..h {
                 for x in 0..w {
                     let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
@@ -741,7 +773,7 @@ mod tests {
         // A pixel whose reprojection failed.
         let failed = 0;
         b.valid[failed] = 0.0;
-        screen(&mut b, w, h);
+        screen(&Pool::new(2).unwrap(), &mut b, w, h);
         for i in 0..n {
             let mean = |c: usize| 0.5 * (b.pa[c * n + i] + b.pb[c * n + i]);
             if i == failed {
