@@ -121,7 +121,7 @@ struct Bufs {
     zeros: Vec<f32>,
     big: Vec<f32>,
     hist: Vec<f32>,
-    /// The success mask eroded along rows.
+    /// The reprojection's success mask before its erosion.
     row_ok: Vec<f32>,
     /// The screening's window minimum and maximum, their row passes, and the
     /// current plane they are taken of (5 planes).
@@ -287,8 +287,8 @@ impl Cross {
 /// (the authors' temporal screening).
 const SCREEN_WINDOW: usize = 7;
 
-/// Minimum and maximum of `src` (one `w x h` plane) over the
-/// `SCREEN_WINDOW`-wide square around each pixel (inside the image), by a
+/// Minimum and maximum of `src` (one `w x h` plane) over the square of
+/// radius `r` around each pixel (inside the image), by a
 /// pass along rows into `tmin`/`tmax` and one along columns, each over
 /// slices (so they vectorise) and in parallel over rows.
 #[allow(clippy::too_many_arguments)]
@@ -297,13 +297,13 @@ fn window_range(
     src: &[f32],
     w: usize,
     h: usize,
+    r: usize,
     tmin: &mut [f32],
     tmax: &mut [f32],
     mn: &mut [f32],
     mx: &mut [f32],
 ) {
     use rayon::prelude::*;
-    let r = SCREEN_WINDOW / 2;
     pool.install(|| {
         src.par_chunks_exact(w).zip(tmin.par_chunks_exact_mut(w).zip(tmax.par_chunks_exact_mut(w))).for_each(
             |(row, (lo, hi))| {
@@ -312,7 +312,7 @@ fn window_range(
                     let m = w - 2 * r;
                     lo[r..r + m].copy_from_slice(&row[..m]);
                     hi[r..r + m].copy_from_slice(&row[..m]);
-                    for k in 1..SCREEN_WINDOW {
+                    for k in 1..=2 * r {
                         for ((l, h), &v) in lo[r..r + m].iter_mut().zip(&mut hi[r..r + m]).zip(&row[k..k + m]) {
                             *l = l.min(v);
                             *h = h.max(v);
@@ -370,7 +370,7 @@ fn screen(pool: &Pool, b: &mut Bufs, w: usize, h: usize) {
             *m = 0.5 * (a + bb);
         }
         for (g, cur) in [(0usize, &*mean), (1, &b.pa[c * n..(c + 1) * n]), (2, &b.pb[c * n..(c + 1) * n])] {
-            window_range(pool, cur, w, h, tmin, tmax, mn, mx);
+            window_range(pool, cur, w, h, SCREEN_WINDOW / 2, tmin, tmax, mn, mx);
             let prev = &b.warped[(3 * g + c) * n..(3 * g + c + 1) * n];
             for (((k, &p), &lo), &hi) in keep.iter_mut().zip(prev).zip(&*mn).zip(&*mx) {
                 let inside = p > lo && p < hi;
@@ -540,23 +540,15 @@ impl Denoiser for Cross {
             // Valid where the pixel and its 3x3 neighbours (inside the
             // image) all reprojected: the authors' erosion of the success
             // mask against bilinear-reprojection artefacts at its edges
-            // (a minimum along rows, then along columns).
-            for (ok, hr) in bufs.row_ok.chunks_exact_mut(w).zip(bufs.hist.chunks_exact(w)) {
-                for (x, o) in ok.iter_mut().enumerate() {
-                    let (a, b) = (x.saturating_sub(1), (x + 2).min(w));
-                    *o = if hr[a..b].iter().all(|&v| v > 0.0) { 1.0 } else { 0.0 };
-                }
+            // (the mask's minimum over the 3x3 window).
+            for (ok, &v) in bufs.row_ok.iter_mut().zip(&bufs.hist) {
+                *ok = if v > 0.0 { 1.0 } else { 0.0 };
             }
-            for y in 0..h {
-                let (a, b) = (y.saturating_sub(1), (y + 2).min(h));
-                let out = &mut bufs.valid[y * w..(y + 1) * w];
-                out.copy_from_slice(&bufs.row_ok[a * w..(a + 1) * w]);
-                for yy in a + 1..b {
-                    for (o, &v) in out.iter_mut().zip(&bufs.row_ok[yy * w..(yy + 1) * w]) {
-                        *o = o.min(v);
-                    }
-                }
-            }
+            let (_, rest) = bufs.window.split_at_mut(n);
+            let (tmin, rest) = rest.split_at_mut(n);
+            let (tmax, rest) = rest.split_at_mut(n);
+            let (_, mx) = rest.split_at_mut(n);
+            window_range(&ctx.pool, &bufs.row_ok, w, h, 1, tmin, tmax, &mut bufs.valid, mx);
             Ok(())
         })?;
         // Where nothing reprojects, the current values stand in; where it
@@ -724,7 +716,7 @@ mod tests {
             let n = w * h;
             let src: Vec<f32> = (0..n).map(|i| ((i * 37 + 11) % 23) as f32 - 7.0).collect();
             let (mut t1, mut t2, mut mn, mut mx) = (vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n]);
-            window_range(&Pool::new(2).unwrap(), &src, w, h, &mut t1, &mut t2, &mut mn, &mut mx);
+            window_range(&Pool::new(2).unwrap(), &src, w, h, 3, &mut t1, &mut t2, &mut mn, &mut mx);
             for y in 0..h {
                 for x in 0..w {
                     let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
