@@ -715,12 +715,15 @@ def parse_args(argv):
                    help='pixel type of ref/frame_NNNN.exr (default: --dtype)')
     p.add_argument('--no-ref', action='store_true', help='skip the reference renders')
     p.add_argument('--frame-range', help='render only frames A:B (python slice, end excluded)')
+    p.add_argument('--resume', action='store_true',
+                   help='skip frames whose output (and reference) files exist already')
     p.add_argument('--freeze-lights', action='store_true',
                    help='keep emitters at their first keyframe (for motion-vector checks)')
-    p.add_argument('--albedo', choices=['reflectance', 'mitsuba'], default='reflectance',
+    p.add_argument('--albedo', choices=['reflectance', 'mitsuba'],
                    help='albedo.* channels: "reflectance" = directional albedo from BSDF '
                         'sampling (equals Mitsuba\'s AOV on diffuse surfaces, <= 1 on '
-                        'metals; default), "mitsuba" = Mitsuba\'s albedo AOV as is')
+                        'metals), "mitsuba" = Mitsuba\'s albedo AOV as is; default: the '
+                        'scene file\'s "albedo", else reflectance')
     p.add_argument('--variant', help='Mitsuba variant (default llvm_ad_rgb, scalar_rgb fallback)')
     p.add_argument('--max-lanes', type=int, default=1 << 24,
                    help='max samples in flight per mi.render pass (default 2^24)')
@@ -747,7 +750,9 @@ def main(argv=None):
         frames = frames[int(a) if a else 0:int(b) if b else None]
 
     aov_integrator = mi.load_dict({'type': 'aov', 'aovs': AOV_SPEC})
-    albedo_mode = args.albedo
+    albedo_mode = args.albedo or desc.data.get('albedo', 'reflectance')
+    if albedo_mode not in ('reflectance', 'mitsuba'):
+        sys.exit('render.py: %s: "albedo" must be reflectance or mitsuba' % args.scene)
     if albedo_mode == 'reflectance' and not is_jit():
         print('render.py: --albedo reflectance needs a JIT variant; writing Mitsuba\'s '
               'albedo AOV instead', file=sys.stderr)
@@ -774,8 +779,15 @@ def main(argv=None):
     prev_cam, prev_mats = None, None
     if frames and frames[0] > 0:  # rendering a sub-range: rebuild the previous frame's state
         _, prev_cam, prev_mats = desc.build(desc.time_of(frames[0] - 1))
+    done = []
     for f in frames:
         t = desc.time_of(f)
+        name = 'frame_%04d.exr' % f
+        if args.resume and os.path.exists(os.path.join(args.out, name)) and (
+                args.no_ref or os.path.exists(os.path.join(args.out, 'ref', name))):
+            _, prev_cam, prev_mats = desc.build(t)
+            done.append(f)
+            continue
         t0 = time.time()
         scene_dict, cam, mats = desc.build(t)
         scene = mi.load_dict(scene_dict)
@@ -818,7 +830,6 @@ def main(argv=None):
         channels.update(aovs)
         channels['motion.X'] = motion[..., 0]
         channels['motion.Y'] = motion[..., 1]
-        name = 'frame_%04d.exr' % f
         write_exr(os.path.join(args.out, name), channels, args.dtype == 'half', stats)
         ref_passes = 0
         t_ref = 0.0
@@ -848,14 +859,15 @@ def main(argv=None):
         prev_cam, prev_mats = cam, mats
     info['total_seconds'] = round(time.time() - t_start, 1)
     info_path = os.path.join(args.out, 'render_info.json')
-    if args.frame_range and os.path.exists(info_path):  # merge with earlier partial runs
+    if (args.frame_range or done) and os.path.exists(info_path):  # merge with earlier partial runs
         with open(info_path) as fh:
             old = json.load(fh)
-        keep = [x for x in old.get('frames_info', []) if x['frame'] not in frames]
+        rendered = [f for f in frames if f not in done]
+        keep = [x for x in old.get('frames_info', []) if x['frame'] not in rendered]
         info['frames_info'] = sorted(keep + info['frames_info'], key=lambda x: x['frame'])
     with open(info_path, 'w') as fh:
         json.dump(info, fh, indent=1)
-    print('wrote %d frame(s) to %s in %.1fs' % (len(frames), args.out, time.time() - t_start))
+    print('wrote %d frame(s) to %s in %.1fs' % (len(frames) - len(done), args.out, time.time() - t_start))
 
 
 if __name__ == '__main__':
