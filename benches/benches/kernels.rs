@@ -8,10 +8,10 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use mcdenoise::par::Pool;
-use mcdenoise::registry::{self, Config, Inputs, Layout};
+use mcdenoise::runtime::par::Pool;
 use mcdenoise_benches::*;
 use mcdenoise_core::{Isa, View, ViewMut, F32};
+use mcdenoise_kit::registry::{self, Config, Inputs, Layout};
 
 const PLANE: usize = W * H;
 
@@ -137,9 +137,9 @@ fn bench_atrous_step(c: &mut Criterion) {
     normal[2 * PLANE..].fill(1.0);
     let position = values(3 * PLANE, 0.0, 0.001, 22);
     // On cache lines, as the host allocates its planes.
-    let al = mcdenoise::aligned::Aligned::from_slice;
+    let al = mcdenoise::runtime::aligned::Aligned::from_slice;
     let (src, noise, normal, position) = (al(&src), al(&noise), al(&normal), al(&position));
-    let mut out = mcdenoise::aligned::Aligned::<f32>::zeroed(3 * PLANE);
+    let mut out = mcdenoise::runtime::aligned::Aligned::<f32>::zeroed(3 * PLANE);
     let guides = AtrousGuides {
         noise: View::new(&noise, 1, W, H).unwrap(),
         normal: Some(View::new(&normal, 3, W, H).unwrap()),

@@ -14,7 +14,7 @@ use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::time::Instant;
 
-use mcdenoise::output::write_exr_rows;
+use mcdenoise::io::output::write_exr_rows;
 
 const CHANNELS: [&str; 18] = [
     "R",

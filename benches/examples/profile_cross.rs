@@ -11,11 +11,11 @@
 //! the vectorised `exp` 16: 2 for the range reduction, 2 for the remainder,
 //! 12 for its six-term polynomial); they are what the kernels execute, not a
 //! minimum for the maths.
-use mcdenoise::par::Pool;
-use mcdenoise::precision::PrecisionKind;
-use mcdenoise::registry::{self, Config, Inputs, Layout};
+use mcdenoise::runtime::par::Pool;
+use mcdenoise::runtime::precision::PrecisionKind;
 use mcdenoise_core::regress::{centres, FILTER_WINDOW, REG_WINDOW};
 use mcdenoise_core::Isa;
+use mcdenoise_kit::registry::{self, Config, Inputs, Layout};
 
 /// Flops of one `exp_vec`.
 const EXP: f64 = 16.0;

@@ -13,21 +13,21 @@ fn main() {
     let mut frame = tiled_cornell();
     if std::env::var("NOPAIR").is_ok_and(|v| v == "1") {
         // The single-estimate path: no second half-sample image.
-        frame.remove(mcdenoise::frame::Buffer::ColorB);
+        frame.remove(mcdenoise::io::frame::Buffer::ColorB);
     }
     let layers: usize = std::env::var("LAYERS").ok().and_then(|v| v.parse().ok()).unwrap_or(6);
     let settings = Settings { threads, layers, ..Settings::default() };
     // WSKP-3 has no bundled weights; its speed does not depend on their values.
     let mut den = if kind == MethodKind::Wskp && layers == 3 {
-        let net = mcdenoise::wskp::net(3).unwrap();
+        let net = mcdenoise::methods::wskp::net(3).unwrap();
         let params = net.init(1);
         Box::new(
-            mcdenoise::wskp::Wskp::<mcdenoise_core::F32>::from_params(
+            mcdenoise::methods::wskp::Wskp::<mcdenoise_core::F32>::from_params(
                 &frame,
                 net,
                 params,
                 3,
-                mcdenoise::wskp::Sizes::ALL,
+                mcdenoise::methods::wskp::Sizes::ALL,
             )
             .unwrap(),
         )

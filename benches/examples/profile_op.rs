@@ -3,10 +3,10 @@
 //! [REPS]` (defaults: f32, the best ISA, 1 thread, 5 runs). A small `W x H`
 //! keeps the inputs in cache, to separate an operator's own speed from the
 //! memory system's. `profile_op list` prints the operators.
-use mcdenoise::par::Pool;
-use mcdenoise::precision::PrecisionKind;
-use mcdenoise::registry::{self, Config, Inputs, Layout};
+use mcdenoise::runtime::par::Pool;
+use mcdenoise::runtime::precision::PrecisionKind;
 use mcdenoise_core::Isa;
+use mcdenoise_kit::registry::{self, Config, Inputs, Layout};
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();

@@ -20,9 +20,9 @@ fn main() {
     let pad = dim("PAD", 0);
     let ps = plane + pad;
     let src = values(3 * groups * ps, 0.0, 1.0, 20);
-    let mut out = mcdenoise::aligned::Aligned::<f32>::zeroed(3 * groups * ps);
+    let mut out = mcdenoise::runtime::aligned::Aligned::<f32>::zeroed(3 * groups * ps);
     // Buffers on cache lines, as the host allocates them.
-    let al = mcdenoise::aligned::Aligned::from_slice;
+    let al = mcdenoise::runtime::aligned::Aligned::from_slice;
     let (src, noise, normal, position) = (al(&src), al(&noise), al(&normal), al(&position));
     let guides = AtrousGuides {
         noise: View::new(&noise, 1, W, H).unwrap(),

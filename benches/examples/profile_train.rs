@@ -2,10 +2,10 @@
 //! backward, Adam) on a batch of synthetic crops, the median of REPS steps:
 //! `profile_train [LAYERS] [THREADS] [REPS] [BATCH] [CROP]` (defaults 6, 2,
 //! 20, 8, 128).
+use mcdenoise::methods::wskp;
 use mcdenoise::nn::loss::Loss;
 use mcdenoise::nn::{Nets, Trainer, Workspace};
-use mcdenoise::par::Pool;
-use mcdenoise::wskp;
+use mcdenoise::runtime::par::Pool;
 use mcdenoise_benches::values;
 use mcdenoise_core::Isa;
 

@@ -194,7 +194,7 @@ pub fn fma_peak512(iters: usize) -> f32 {
 /// with its second estimate, albedo, normal, depth and position), so the
 /// method benches run on rendered content at the bench size.
 pub fn tiled_cornell() -> mcdenoise::Frame {
-    use mcdenoise::frame::{Buffer, Frame, Limits};
+    use mcdenoise::io::frame::{Buffer, Frame, Limits};
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/cornell16/frame_0000.exr");
     let src = Frame::load(&dir, &Limits::default()).expect("the Cornell fixture loads");
     let (sw, sh) = (src.width, src.height);

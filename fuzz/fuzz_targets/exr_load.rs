@@ -5,7 +5,7 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use mcdenoise::frame::{Buffer, Frame, Limits};
+use mcdenoise::io::frame::{Buffer, Frame, Limits};
 
 fuzz_target!(|data: &[u8]| {
     // Small limits so a hostile header cannot make a legitimate huge image.

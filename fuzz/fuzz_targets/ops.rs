@@ -11,9 +11,9 @@
 
 use arbitrary::Arbitrary;
 use libfuzzer_sys::fuzz_target;
-use mcdenoise::par::Pool;
-use mcdenoise::precision::PrecisionKind;
-use mcdenoise::registry::{self, Config, Field, Inputs, Layout};
+use mcdenoise::runtime::par::Pool;
+use mcdenoise::runtime::precision::PrecisionKind;
+use mcdenoise_kit::registry::{self, Config, Field, Inputs, Layout};
 use mcdenoise_core::Isa;
 
 #[derive(Arbitrary, Debug)]

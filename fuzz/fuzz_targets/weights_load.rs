@@ -7,7 +7,7 @@ use libfuzzer_sys::fuzz_target;
 use mcdenoise::nn::weights::File;
 
 fuzz_target!(|data: &[u8]| {
-    let net = mcdenoise::wskp::net(3).expect("the 3-layer network");
+    let net = mcdenoise::methods::wskp::net(3).expect("the 3-layer network");
     if let Ok(f) = File::from_bytes(data.to_vec(), std::path::Path::new("fuzz.safetensors")) {
         let _ = f.meta("layers");
         let _ = f.names();

@@ -7,18 +7,19 @@
 //! cargo run --release -p mcdenoise --example library -- DIR OUT wskp  # your frames (references in DIR/ref/, if any)
 //! ```
 //!
-//! The CLI's `denoise` does the same through `run::denoise_sequence`, which
+//! The CLI's `denoise` does the same through `mcdenoise::pipeline::denoise_sequence`, which
 //! adds the memory check from each header and the atomic writes.
 
 use std::path::{Path, PathBuf};
 
-use mcdenoise::frame::{Buffer, Frame, Limits};
+use mcdenoise::io::frame::{Buffer, Frame, Limits};
+use mcdenoise::io::{list_inputs, output};
 use mcdenoise::methods::{self, MethodKind, Settings, Timings};
-use mcdenoise::{metrics, output, run};
+use mcdenoise::metrics;
 
 fn main() -> mcdenoise::Result<()> {
     let mut args = std::env::args().skip(1);
-    let input = args.next().map(PathBuf::from).unwrap_or(run::sample_dir()?);
+    let input = args.next().map(PathBuf::from).unwrap_or(Path::new(env!("CARGO_MANIFEST_DIR")).join("../samples"));
     let outdir = args.next().map(PathBuf::from).unwrap_or_else(|| PathBuf::from("mcdenoise-out/library-example"));
     let method = match args.next() {
         Some(name) => MethodKind::parse(&name)?,
@@ -27,7 +28,7 @@ fn main() -> mcdenoise::Result<()> {
 
     // Frames in name order (a directory's .exr files), and the settings every
     // method shares: here two threads and the widest instruction set.
-    let files = run::list_inputs(std::slice::from_ref(&input))?;
+    let files = list_inputs(std::slice::from_ref(&input))?;
     let settings = Settings { threads: 2, ..Settings::default() };
     let limits = Limits::default();
 

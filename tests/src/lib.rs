@@ -4,7 +4,7 @@
 //! would overflow f64 beyond 709, so the oracle subtracts the window maximum —
 //! the one mathematically exact rewrite — and sums in f64.
 
-pub use mcdenoise::oracle;
+pub use mcdenoise_kit::oracle;
 
 use rand::rngs::SmallRng;
 use rand::{Rng, SeedableRng};
@@ -144,7 +144,7 @@ pub fn wskp_test_weights(layers: usize) -> std::path::PathBuf {
     let dir = std::env::temp_dir().join(format!("mcdenoise-test-{}", std::process::id()));
     let path = dir.join(format!("wskp{layers}.safetensors"));
     if !path.exists() {
-        let net = mcdenoise::wskp::net(layers).unwrap();
+        let net = mcdenoise::methods::wskp::net(layers).unwrap();
         // Small weights: logits of a few nats, every window carrying weight.
         let params: Vec<f32> = net.init(7).iter().map(|v| v * 0.3).collect();
         save_params(&path, &net, &params, Form::Branches, "wskp", &[("layers", layers.to_string())]).unwrap();
@@ -174,10 +174,10 @@ pub fn afn_test_weights() -> std::path::PathBuf {
     let dir = std::env::temp_dir().join(format!("mcdenoise-test-{}", std::process::id()));
     let path = dir.join("afn.safetensors");
     if !path.exists() {
-        let (k, r) = (mcdenoise::afn::kernel_net().unwrap(), mcdenoise::afn::refine_net().unwrap());
+        let (k, r) = (mcdenoise::methods::afn::kernel_net().unwrap(), mcdenoise::methods::afn::refine_net().unwrap());
         // A small residual: the refinement starts near the identity.
         let rp: Vec<f32> = r.init(8).iter().map(|v| v * 0.05).collect();
-        mcdenoise::afn::save(&path, &k, &k.init(7), &r, &rp, &[]).unwrap();
+        mcdenoise::methods::afn::save(&path, &k, &k.init(7), &r, &rp, &[]).unwrap();
     }
     path
 }

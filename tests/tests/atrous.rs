@@ -3,10 +3,10 @@
 
 use std::path::Path;
 
-use mcdenoise::frame::{Buffer, Frame, Limits};
+use mcdenoise::io::frame::{Buffer, Frame, Limits};
 use mcdenoise::methods::{self, MethodKind, Settings, Timings};
 use mcdenoise::metrics;
-use mcdenoise::precision::PrecisionKind;
+use mcdenoise::runtime::precision::PrecisionKind;
 use mcdenoise_core::atrous::{self, AtrousGuides, AtrousParams};
 use mcdenoise_core::{Isa, View, ViewMut, F32};
 use mcdenoise_tests::{assert_close, assert_close32, isas_under_test, oracle, simd_isas, Img};

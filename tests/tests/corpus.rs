@@ -10,10 +10,10 @@
 
 use std::path::{Path, PathBuf};
 
-use mcdenoise::frame::{Buffer, Frame, Limits};
+use mcdenoise::io::frame::{Buffer, Frame, Limits};
 use mcdenoise::methods::{self, MethodKind, Settings, Timings};
 use mcdenoise::metrics;
-use mcdenoise::precision::PrecisionKind;
+use mcdenoise::runtime::precision::PrecisionKind;
 
 fn corpus(p: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures").join("corpus").join(p)

@@ -8,9 +8,9 @@
 
 #![allow(clippy::needless_range_loop)]
 
-use mcdenoise::registry::{errors, op, Config, Inputs, Layout};
 use mcdenoise_core::regress::{self, FilterInputs, RegressionInputs};
 use mcdenoise_core::Isa;
+use mcdenoise_kit::registry::{errors, op, Config, Inputs, Layout};
 use mcdenoise_tests::{isas_under_test, oracle, Img};
 use proptest::prelude::*;
 
@@ -26,8 +26,8 @@ fn width() -> impl Strategy<Value = usize> {
 /// ISA, odd sizes, with padding), 1 and 3 threads bit-identical.
 #[test]
 fn registry_operators_match_the_oracle() {
-    let one = mcdenoise::par::Pool::new(1).unwrap();
-    let three = mcdenoise::par::Pool::new(3).unwrap();
+    let one = mcdenoise::runtime::par::Pool::new(1).unwrap();
+    let three = mcdenoise::runtime::par::Pool::new(3).unwrap();
     let mut checked = 0;
     for name in ["cross-variance", "cross-regression", "cross-filter", "cross-filter-grad"] {
         let op = op(name).expect("registered");
@@ -37,7 +37,7 @@ fn registry_operators_match_the_oracle() {
             for &isa in &isas_under_test() {
                 for pad in [0, 3] {
                     let cfg = Config { isa, layout: Layout { pad }, out_frac: 0 };
-                    let p = mcdenoise::precision::PrecisionKind::F32;
+                    let p = mcdenoise::runtime::precision::PrecisionKind::F32;
                     let mut run = op.prepare(p, cfg, &inputs).unwrap();
                     run.run(&one).unwrap();
                     let got = run.output();
@@ -311,8 +311,8 @@ fn bad_shapes_are_errors() {
 mod method {
     use std::path::Path;
 
-    use mcdenoise::cross::Cross;
-    use mcdenoise::frame::{Buffer, Frame, Limits};
+    use mcdenoise::io::frame::{Buffer, Frame, Limits};
+    use mcdenoise::methods::cross::Cross;
     use mcdenoise::methods::{self, Denoiser, MethodKind, Settings, Timings};
     use mcdenoise_tests::isas_under_test;
 

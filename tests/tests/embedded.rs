@@ -17,10 +17,10 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::Mutex;
 
-use mcdenoise::oracle;
 use mcdenoise_core::atrous::AtrousParams;
 use mcdenoise_core::{atrous, conv, unfold, Fixed, F32};
 use mcdenoise_embedded_suite as suite;
+use mcdenoise_kit::oracle;
 use suite::{Case, Op, Tensor, CASES, H, W};
 
 /// The suite's buffers are statics: one native run at a time.

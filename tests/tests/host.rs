@@ -3,10 +3,10 @@
 
 use std::path::Path;
 
-use mcdenoise::frame::{Buffer, Frame, Limits};
+use mcdenoise::io::frame::{Buffer, Frame, Limits};
 use mcdenoise::methods::{self, MethodKind, Settings, Timings};
-use mcdenoise::par::{Pool, Scratch};
-use mcdenoise::precision::PrecisionKind;
+use mcdenoise::runtime::par::{Pool, Scratch};
+use mcdenoise::runtime::precision::PrecisionKind;
 use mcdenoise_core::softmax::{self, FusedInputs, WindowPath};
 use mcdenoise_core::{Isa, ViewMut, F32};
 use mcdenoise_tests::{isas_under_test, Img};
@@ -153,12 +153,12 @@ fn loader_sanitises_non_finite_values() {
     v[0] = f32::NAN;
     v[1] = f32::INFINITY;
     v[2] = f32::NEG_INFINITY;
-    mcdenoise::output::write_exr(&t, 4, 3, &[("R", &v), ("G", &v), ("B", &v)], false).unwrap();
+    mcdenoise::io::output::write_exr(&t, 4, 3, &[("R", &v), ("G", &v), ("B", &v)], false).unwrap();
     let f = Frame::load(&t, &Limits::default()).unwrap();
     std::fs::remove_file(&t).unwrap();
     let c = f.get(Buffer::Color).unwrap();
     assert_eq!(f.replaced_nonfinite, 9);
-    assert_eq!((c[0], c[1], c[2]), (0.0, mcdenoise::frame::VALUE_LIMIT, -mcdenoise::frame::VALUE_LIMIT));
+    assert_eq!((c[0], c[1], c[2]), (0.0, mcdenoise::io::frame::VALUE_LIMIT, -mcdenoise::io::frame::VALUE_LIMIT));
     assert!(c.iter().all(|v| v.is_finite()));
 }
 

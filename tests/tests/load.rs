@@ -10,9 +10,9 @@
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicIsize, AtomicUsize, Ordering};
 
-use mcdenoise::frame::{Buffer, Frame};
+use mcdenoise::io::frame::{Buffer, Frame};
 use mcdenoise::methods::{self, MethodKind, Settings, Timings};
-use mcdenoise::precision::PrecisionKind;
+use mcdenoise::runtime::precision::PrecisionKind;
 
 /// The system allocator, counting live bytes and allocation calls.
 struct Counting;

@@ -3,7 +3,7 @@
 //! arithmetic's error, not the inputs' quantisation), and the fixed-point
 //! SIMD paths against scalar, bit for bit.
 
-use mcdenoise::precision::{HostPrecision, Kind, Planes};
+use mcdenoise::runtime::precision::{HostPrecision, Kind, Planes};
 use mcdenoise_core::conv::{self, Activation, Conv2d};
 use mcdenoise_core::pool::{self, Reduce};
 use mcdenoise_core::softmax::{self, FusedInputs, WindowPath};

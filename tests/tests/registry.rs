@@ -6,10 +6,10 @@
 //! show as a NaN or a wrong value), fixed point bit-identical across ISAs,
 //! and every result bit-identical for 1 and 3 threads.
 
-use mcdenoise::par::Pool;
-use mcdenoise::precision::PrecisionKind;
-use mcdenoise::registry::{errors, ops, Config, Inputs, Layout};
+use mcdenoise::runtime::par::Pool;
+use mcdenoise::runtime::precision::PrecisionKind;
 use mcdenoise_core::Isa;
+use mcdenoise_kit::registry::{errors, ops, Config, Inputs, Layout};
 use mcdenoise_tests::isas_under_test;
 
 const SIZES: [(usize, usize); 5] = [(1, 1), (9, 5), (17, 13), (1, 9), (37, 21)];

@@ -11,7 +11,7 @@
 //! 3. Handed non-finite radiance directly, operators do not panic; NaN can
 //!    then reach the outputs whose windows contain it (never from finite data).
 
-use mcdenoise::precision::{HostPrecision, Kind, Planes};
+use mcdenoise::runtime::precision::{HostPrecision, Kind, Planes};
 use mcdenoise_core::atrous::{self, AtrousGuides, AtrousParams};
 use mcdenoise_core::conv::{self, Activation, Conv2d};
 use mcdenoise_core::pool::{self, Reduce};

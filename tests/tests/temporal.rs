@@ -1,12 +1,12 @@
 //! Temporal accumulation against the project's f64 oracle
-//! (`mcdenoise::oracle::temporal`) on inputs the operator registry's
+//! (`mcdenoise_kit::oracle::temporal`) on inputs the operator registry's
 //! entries do not draw: NaN motion and motion far outside the image, every
 //! pixel's geometry either agreeing or rejected by position or by normal,
 //! history capped, odd sizes and bands of rows, f32 and f16 storage.
 
-use mcdenoise::oracle::{self, TemporalRef};
 use mcdenoise_core::temporal::{self, TemporalInputs, TemporalParams, TemporalPrecision};
 use mcdenoise_core::{View, ViewMut, F16, F32};
+use mcdenoise_kit::oracle::{self, TemporalRef};
 use mcdenoise_tests::{isas_under_test, Img};
 use proptest::prelude::*;
 
@@ -103,7 +103,7 @@ fn case_ch(ch: usize, w: usize, h: usize, seed: u64) -> Case {
     c
 }
 
-/// The project's f64 oracle (`mcdenoise::oracle::temporal`) on a case:
+/// The project's f64 oracle (`mcdenoise_kit::oracle::temporal`) on a case:
 /// (colour, history) of every pixel.
 fn oracle(c: &Case, motion: bool) -> (Vec<f64>, Vec<f64>) {
     let (col, nrm, pos, mot) = (c.color.to_f64(), c.normal.to_f64(), c.position.to_f64(), c.motion.to_f64());

@@ -7,9 +7,9 @@
 
 use std::path::Path;
 
-use mcdenoise::frame::{Buffer, Frame, Limits};
+use mcdenoise::io::frame::{Buffer, Frame, Limits};
 use mcdenoise::methods::{self, MethodKind, Settings, Timings};
-use mcdenoise::precision::PrecisionKind;
+use mcdenoise::runtime::precision::PrecisionKind;
 use mcdenoise_tests::isas_under_test;
 
 fn sequence(drop_b: bool) -> Vec<Frame> {

@@ -5,7 +5,7 @@
 //! weights bit for bit, whatever the thread count.
 
 use mcdenoise::nn::{Conv, Layer, Net, NetDesc, Nets, Trainer, Workspace};
-use mcdenoise::par::Pool;
+use mcdenoise::runtime::par::Pool;
 use mcdenoise_core::conv::Activation;
 use mcdenoise_tests::{isas_under_test, Img};
 
@@ -142,7 +142,7 @@ fn training_is_deterministic_and_thread_count_independent() {
 /// finite differences of the loss.
 #[test]
 fn afn_gradient_matches_finite_differences() {
-    use mcdenoise::afn;
+    use mcdenoise::methods::afn;
     use mcdenoise::nn::loss::Loss;
     let (kn, rn) = (afn::kernel_net().unwrap(), afn::refine_net().unwrap());
     let s = 12;
@@ -206,8 +206,8 @@ fn afn_gradient_matches_finite_differences() {
 /// of its loss.
 #[test]
 fn wskp_gradient_matches_finite_differences_for_subsets_of_sizes() {
+    use mcdenoise::methods::wskp::{self, Sizes};
     use mcdenoise::nn::loss::Loss;
-    use mcdenoise::wskp::{self, Sizes};
     let s = 12;
     let n = s * s;
     let x = Img::random(wskp::CIN, s, s, 0.0, 1.0, 1).data;

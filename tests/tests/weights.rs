@@ -3,9 +3,9 @@
 //! (missing tensors, wrong shapes or dtype, NaN, truncation, another
 //! network's file) giving an error that names the file and the tensor.
 
+use mcdenoise::methods::wskp;
 use mcdenoise::nn::weights::{save, save_params, File, Form, Tensor};
 use mcdenoise::nn::{Conv, Layer, Net, NetDesc};
-use mcdenoise::wskp;
 use mcdenoise_core::conv::{self, Activation, Conv2d};
 use mcdenoise_core::{Isa, F32};
 use mcdenoise_tests::Img;
@@ -154,7 +154,7 @@ fn bad_weight_files_name_the_file_and_the_tensor() {
 fn pytorch_forward_matches_ours() {
     use mcdenoise::methods::{context, Settings};
     use mcdenoise::nn::infer::Inference;
-    use mcdenoise::precision::Planes;
+    use mcdenoise::runtime::precision::Planes;
     use mcdenoise_core::softmax::{self, FusedInputs, WindowPath};
     use mcdenoise_core::{View, ViewMut};
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/wskp_torch");
@@ -210,7 +210,7 @@ fn pytorch_forward_matches_ours() {
 /// output plane, named in the error), and bad metadata is refused by name.
 #[test]
 fn window_sizes_round_trip_through_the_weights_file() {
-    use mcdenoise::wskp::Sizes;
+    use mcdenoise::methods::wskp::Sizes;
     assert_eq!(Sizes::parse("3,5,7,9,11,13").unwrap(), Sizes::ALL);
     assert_eq!(Sizes::parse("13, 3").unwrap().name(), "3,13");
     let one = Sizes::parse("7").unwrap();

@@ -6,9 +6,9 @@ use mcdenoise_core::temporal::{self, TemporalInputs, TemporalParams};
 
 use super::{Ctx, Denoiser, Plan, Timings};
 use crate::error::{HostError, Result};
-use crate::frame::{Buffer, Frame, FrameInfo};
-use crate::memory::{Footprint, Ledger};
-use crate::precision::{store_bytes, HostPrecision, Kind, Planes};
+use crate::io::frame::{Buffer, Frame, FrameInfo};
+use crate::runtime::memory::{Footprint, Ledger};
+use crate::runtime::precision::{store_bytes, HostPrecision, Kind, Planes};
 
 /// `--method none`: the (sanitised) input through the pipeline's precision.
 pub struct Passthrough<P: HostPrecision> {
@@ -24,7 +24,7 @@ impl<P: HostPrecision> Passthrough<P> {
 }
 
 impl<P: HostPrecision> Passthrough<P> {
-    /// Memory per frame (see [`crate::memory`]): the colour in storage, then
+    /// Memory per frame (see [`crate::runtime::memory`]): the colour in storage, then
     /// the f32 output decoded from it.
     pub fn footprint(_info: &FrameInfo) -> Footprint {
         let (s, x) = (store_bytes::<P>(), P::FORMAT_COPY_BYTES);
@@ -133,7 +133,7 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
         Ok(TemporalAccumulation { plan, params, use_normal, use_position, use_motion, prev: None })
     }
 
-    /// Memory per frame (see [`crate::memory`]), replaying [`Self::step`]
+    /// Memory per frame (see [`crate::runtime::memory`]), replaying [`Self::step`]
     /// and [`Denoiser::denoise`]: the history (colour, counts, normal and
     /// position) is kept; a frame encodes its buffers, accumulates into new
     /// colour and counts, drops the previous history, then decodes a copy.

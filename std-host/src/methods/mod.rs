@@ -11,13 +11,17 @@ use std::time::{Duration, Instant};
 use mcdenoise_core::Isa;
 
 use crate::error::{HostError, Result};
-use crate::frame::{Frame, FrameInfo};
-use crate::memory::Footprint;
-use crate::par::{Pool, Scratch};
-use crate::precision::{HostPrecision, PrecisionKind};
+use crate::io::frame::{Frame, FrameInfo};
+use crate::runtime::memory::Footprint;
+use crate::runtime::precision::{HostPrecision, PrecisionKind};
+pub use crate::runtime::Ctx;
 
+pub mod afn;
 mod atrous;
 mod basic;
+pub mod bundled;
+pub mod cross;
+pub mod wskp;
 
 pub use atrous::Atrous;
 
@@ -194,21 +198,11 @@ impl Default for Settings {
             layers: 6,
             weights: None,
             refine: true,
-            seed: crate::cross::SEED,
+            seed: crate::methods::cross::SEED,
             save_state: None,
             load_state: None,
         }
     }
-}
-
-/// What every denoiser runs with: the pool, the ISA and per-band scratch.
-pub struct Ctx {
-    /// Threads.
-    pub pool: Pool,
-    /// Instruction set.
-    pub isa: Isa,
-    /// Per-band scratch, kept across frames.
-    pub scratch: Scratch,
 }
 
 /// A denoiser for one sequence: frames go in in order.
@@ -225,7 +219,7 @@ pub trait Denoiser {
 pub fn create(kind: MethodKind, settings: &Settings, first: &Frame) -> Result<Box<dyn Denoiser>> {
     if kind == MethodKind::Cross {
         // Trained online in f32 whatever the storage precision asked for.
-        let mut c = crate::cross::Cross::new(
+        let mut c = crate::methods::cross::Cross::new(
             first,
             settings.seed,
             settings.load_state.as_deref(),
@@ -251,19 +245,19 @@ fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Fr
         MethodKind::Atrous => Box::new(Atrous::<P>::new(first, false, settings)?),
         MethodKind::SureAtrous => Box::new(Atrous::<P>::new(first, true, settings)?),
         MethodKind::Wskp => {
-            let file = crate::weights::wskp(settings.weights.as_deref(), settings.layers)?;
-            Box::new(crate::wskp::Wskp::<P>::new(first, &file, settings.layers)?)
+            let file = crate::methods::bundled::wskp(settings.weights.as_deref(), settings.layers)?;
+            Box::new(crate::methods::wskp::Wskp::<P>::new(first, &file, settings.layers)?)
         }
         MethodKind::Afn => {
-            let file = crate::weights::afn(settings.weights.as_deref())?;
-            Box::new(crate::afn::Afn::<P>::new(first, &file, settings.refine)?)
+            let file = crate::methods::bundled::afn(settings.weights.as_deref())?;
+            Box::new(crate::methods::afn::Afn::<P>::new(first, &file, settings.refine)?)
         }
         MethodKind::Cross => unreachable!("built above"),
     })
 }
 
 /// The memory `kind` takes in `settings`' precision for frames like `info`,
-/// declared by the method itself (see [`crate::memory`]): a new method adds
+/// declared by the method itself (see [`crate::runtime::memory`]): a new method adds
 /// its entry here (the match is exhaustive, so it cannot be forgotten).
 pub fn footprint(kind: MethodKind, settings: &Settings, info: &FrameInfo) -> Footprint {
     match settings.precision {
@@ -280,14 +274,13 @@ fn footprint_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, info: &
         MethodKind::Ta => TemporalAccumulation::<P>::footprint(info),
         MethodKind::Atrous => Atrous::<P>::footprint(info, false, settings),
         MethodKind::SureAtrous => Atrous::<P>::footprint(info, true, settings),
-        MethodKind::Wskp => crate::wskp::Wskp::<P>::footprint(info, settings.layers, settings.threads),
-        MethodKind::Afn => crate::afn::Afn::<P>::footprint(info, settings.threads),
-        MethodKind::Cross => crate::cross::Cross::footprint(info),
+        MethodKind::Wskp => crate::methods::wskp::Wskp::<P>::footprint(info, settings.layers, settings.threads),
+        MethodKind::Afn => crate::methods::afn::Afn::<P>::footprint(info, settings.threads),
+        MethodKind::Cross => crate::methods::cross::Cross::footprint(info),
     }
 }
 
 /// A context for `settings`.
 pub fn context(settings: &Settings) -> Result<Ctx> {
-    settings.isa.check().map_err(|e| HostError::Usage(format!("--isa: {e}")))?;
-    Ok(Ctx { pool: Pool::new(settings.threads).map_err(HostError::Usage)?, isa: settings.isa, scratch: Scratch::new() })
+    Ctx::new(settings.threads, settings.isa)
 }

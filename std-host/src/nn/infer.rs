@@ -14,8 +14,8 @@ use mcdenoise_core::View;
 
 use super::{Net, Node};
 use crate::error::{HostError, Result};
-use crate::methods::Ctx;
-use crate::precision::{frac_for_max, HostPrecision, Planes};
+use crate::runtime::precision::{frac_for_max, HostPrecision, Planes};
+use crate::runtime::Ctx;
 
 /// One conv layer's weights in the precision.
 struct Weights<T> {

@@ -21,7 +21,7 @@ use mcdenoise_core::{Isa, View, ViewMut, F32};
 use rayon::prelude::*;
 
 use crate::error::{HostError, Result};
-use crate::par::Pool;
+use crate::runtime::par::Pool;
 
 pub mod adam;
 pub mod infer;

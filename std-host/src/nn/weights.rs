@@ -28,7 +28,7 @@ use safetensors::tensor::{Dtype, SafeTensors, TensorView};
 
 use super::Net;
 use crate::error::{HostError, Result};
-use crate::output::atomic_write;
+use crate::runtime::cleanup::atomic_write;
 
 /// Which tensor layout a file holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -48,9 +48,9 @@ use mcdenoise_core::{View, ViewMut};
 
 use super::{Ctx, Denoiser, Plan, Timings};
 use crate::error::{HostError, Result};
-use crate::frame::{Buffer, Frame, FrameInfo};
-use crate::memory::{Footprint, Ledger};
-use crate::precision::{store_bytes, store_is, HostPrecision, Kind, Planes};
+use crate::io::frame::{Buffer, Frame, FrameInfo};
+use crate::runtime::memory::{Footprint, Ledger};
+use crate::runtime::precision::{store_bytes, store_is, HostPrecision, Kind, Planes};
 
 mod plan;
 mod prepare;
@@ -171,7 +171,7 @@ pub struct Atrous<P: HostPrecision> {
 }
 
 impl<P: HostPrecision> Atrous<P> {
-    /// Memory per frame (see [`crate::memory`]), replaying
+    /// Memory per frame (see [`crate::runtime::memory`]), replaying
     /// [`Denoiser::denoise`]: the buffers kept across frames (`Bufs`), the
     /// guides and level-0 images in storage (f32 borrows the frame's), the
     /// output, the fixed-point decode of the kept levels (`sure-atrous`) and

@@ -8,9 +8,9 @@ use mcdenoise_core::atrous::AtrousParams;
 
 use super::{Atrous, DISTANCE_TOLERANCE, FIREFLY_K, FIREFLY_K_PAIR, PHI_PAIR, PHI_SINGLE, PLANE_TOLERANCE};
 use crate::error::Result;
-use crate::frame::{Buffer, Frame};
+use crate::io::frame::{Buffer, Frame};
 use crate::methods::{scene_scale, Plan, Settings};
-use crate::precision::HostPrecision;
+use crate::runtime::precision::HostPrecision;
 
 impl<P: HostPrecision> Atrous<P> {
     /// For a sequence starting with `first`; `sure` selects `sure-atrous`.

@@ -8,9 +8,9 @@ use super::{ALBEDO_EPS, LEVELS, SURE_SAFETY_PAIR};
 /// (so its detail energy, SURE's noise term, comes out times the factor).
 const SURE_H_SCALE: f32 = 0.5 * 8.0;
 const _: () = assert!(SURE_SAFETY_PAIR == 64.0); // SURE_H_SCALE = 0.5 sqrt(64)
-use crate::aligned::Aligned;
 use crate::methods::Ctx;
-use crate::precision::Planes;
+use crate::runtime::aligned::Aligned;
+use crate::runtime::precision::Planes;
 
 /// Buffers kept across the frames of a sequence. Once warm, an f32 run
 /// allocates no image-sized buffer per frame besides its output (the guides

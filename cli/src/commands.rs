@@ -1,180 +1,16 @@
 //! The commands behind the CLI: denoise a sequence, score outputs, the demo.
 
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use crate::cli::DenoiseArgs;
-use crate::error::{HostError, Result};
-use crate::frame::{check_same_size, check_same_size_as, Frame, Limits};
-use crate::memory::{Budget, Estimate};
-use crate::methods::{self, MethodKind, Settings, Timings};
-use crate::metrics::{self, Scores};
-use crate::output;
-
-/// Input files: files as given, directories expanded to their `.exr` files in name order.
-pub fn list_inputs(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
-    let mut out = Vec::new();
-    for p in inputs {
-        let meta = std::fs::metadata(p).map_err(|e| HostError::read(p, e))?;
-        if meta.is_dir() {
-            let mut files: Vec<PathBuf> = std::fs::read_dir(p)
-                .map_err(|e| HostError::read(p, e))?
-                .filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|f| f.is_file() && f.extension().is_some_and(|x| x.eq_ignore_ascii_case("exr")))
-                .collect();
-            files.sort();
-            if files.is_empty() {
-                return Err(HostError::bad(p, "directory holds no .exr files"));
-            }
-            out.extend(files);
-        } else {
-            out.push(p.clone());
-        }
-    }
-    let mut names = std::collections::HashSet::new();
-    for f in &out {
-        if !names.insert(f.file_name().map(|n| n.to_os_string())) {
-            return Err(HostError::bad(f, "two inputs have this file name; their outputs would collide"));
-        }
-    }
-    Ok(out)
-}
-
-/// What a sequence run produced.
-#[derive(Debug, Default)]
-pub struct RunReport {
-    /// Output files, in frame order.
-    pub outputs: Vec<PathBuf>,
-    /// Kernel-side times (I/O excluded).
-    pub timings: Timings,
-    /// Frames processed.
-    pub frames: usize,
-    /// The method's one-line plan.
-    pub plan: String,
-    /// The stages the method built and skipped.
-    pub stages: methods::Plan,
-    /// The buffers the first frame has (by [`Buffer::name`](crate::frame::Buffer::name)).
-    pub buffers: Vec<&'static str>,
-    /// Frame width and height.
-    pub size: (usize, usize),
-    /// Per-frame warnings (non-finite values replaced).
-    pub warnings: Vec<String>,
-    /// The memory estimate of the largest frame.
-    pub estimate: Option<Estimate>,
-}
-
-/// How a sequence's outputs are written and how much memory it may take.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct SequenceOptions {
-    /// f16 output.
-    pub half: bool,
-    /// PNG previews.
-    pub png: bool,
-    /// `--max-memory` (without it: the memory available now).
-    pub max_memory: Option<u64>,
-    /// No progress bar even on a terminal.
-    pub quiet: bool,
-}
-
-/// Opens frame `path` and checks, from its header, its size against the
-/// sequence's and the memory its processing takes against `budget`, before
-/// any pixel is read.
-#[allow(clippy::too_many_arguments)]
-fn open_checked(
-    path: &Path,
-    limits: &Limits,
-    first: Option<(&Path, (usize, usize))>,
-    method: MethodKind,
-    settings: &Settings,
-    opts: &SequenceOptions,
-    budget: &Budget,
-    report: &mut RunReport,
-) -> Result<Frame> {
-    let reader = Frame::open(path, limits)?;
-    let info = reader.info();
-    if let Some((first, dims)) = first {
-        check_same_size_as(first, dims, path, (info.width, info.height))?;
-    }
-    let est = Estimate::new(info, methods::footprint(method, settings, info), opts.half, opts.png);
-    budget.check(&est, info, &format!("{} in {}", method.name(), settings.precision.name()))?;
-    if report.estimate.is_none_or(|e| e.bytes() < est.bytes()) {
-        report.estimate = Some(est);
-    }
-    reader.read()
-}
-
-/// Denoises `inputs` with `method` into `outdir`. Each frame's header is
-/// checked (size, memory) before its pixels are read; each output is
-/// written whole or not at all.
-pub fn denoise_sequence(
-    method: MethodKind,
-    settings: &Settings,
-    inputs: &[PathBuf],
-    outdir: &Path,
-    opts: &SequenceOptions,
-    mut on_frame: impl FnMut(usize, &[f32], &Frame),
-) -> Result<RunReport> {
-    let files = list_inputs(inputs)?;
-    let outputs: Vec<PathBuf> = files.iter().map(|f| outdir.join(f.file_name().expect("a file has a name"))).collect();
-    let pngs: Vec<PathBuf> = outputs.iter().map(|o| o.with_extension("png")).collect();
-    let mut all_out = outputs.clone();
-    if opts.png {
-        all_out.extend(pngs.iter().cloned());
-    }
-    output::prepare_outputs(outdir, &files, &all_out)?;
-    let limits = Limits::default();
-    let budget = Budget::detect(opts.max_memory, settings.threads);
-    let mut report = RunReport::default();
-    let first = open_checked(&files[0], &limits, None, method, settings, opts, &budget, &mut report)?;
-    let mut den = methods::create(method, settings, &first)?;
-    let mut ctx = methods::context(settings)?;
-    report.plan = den.plan().line(den.name());
-    report.stages = den.plan().clone();
-    report.buffers = crate::frame::Buffer::ALL.into_iter().filter(|b| first.has(*b)).map(|b| b.name()).collect();
-    report.size = (first.width, first.height);
-    let bar = (files.len() > 1 && !opts.quiet && std::io::stderr().is_terminal()).then(|| {
-        let b = indicatif::ProgressBar::new(files.len() as u64);
-        b.set_style(
-            indicatif::ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} {msg}")
-                .expect("static template")
-                .progress_chars("=> "),
-        );
-        b.set_prefix(method.name());
-        b
-    });
-    let dims = (first.width, first.height);
-    let mut frame = Some(first);
-    for (i, path) in files.iter().enumerate() {
-        let f = match frame.take() {
-            Some(f) => f,
-            None => open_checked(path, &limits, Some((&files[0], dims)), method, settings, opts, &budget, &mut report)?,
-        };
-        check_same_size(&files[0], dims, &f)?;
-        if f.replaced_nonfinite > 0 {
-            report.warnings.push(format!(
-                "{}: {} non-finite values replaced (NaN by 0, inf by ±1e20)",
-                path.display(),
-                f.replaced_nonfinite
-            ));
-        }
-        let out = den.denoise(&f, &mut ctx, &mut report.timings)?;
-        on_frame(i, &out, &f);
-        output::write_rgb_exr(&outputs[i], f.width, f.height, &out, opts.half)?;
-        if opts.png {
-            output::write_png_preview(&pngs[i], f.width, f.height, &out)?;
-        }
-        report.frames += 1;
-        if let Some(b) = &bar {
-            b.inc(1);
-        }
-    }
-    if let Some(b) = bar {
-        b.finish_and_clear();
-    }
-    report.outputs = outputs;
-    Ok(report)
-}
+use mcdenoise::error::{HostError, Result};
+use mcdenoise::io::estimate::Estimate;
+use mcdenoise::io::frame::{check_same_size, Frame, Limits};
+use mcdenoise::io::{list_inputs, output};
+use mcdenoise::methods::{MethodKind, Settings, Timings};
+use mcdenoise::metrics::{self, Scores};
+use mcdenoise::pipeline::{denoise_sequence, RunReport, SequenceOptions};
 
 /// `mcdenoise denoise`: the plan and the buffers on stderr and a one-line
 /// summary on stdout (`--timings`: the stages' times and the memory too);
@@ -261,8 +97,8 @@ fn json_run(a: &DenoiseArgs, rep: &RunReport, seconds: f64) -> String {
         strings(&mut rep.buffers.iter().map(|s| s.to_string())),
         timings.join(","),
         opt(rep.estimate.map(|e| e.bytes())),
-        opt(crate::memory::heap().map(|(_, peak)| peak)),
-        opt(crate::memory::peak_resident()),
+        opt(mcdenoise::runtime::memory::heap().map(|(_, peak)| peak)),
+        opt(mcdenoise::runtime::memory::peak_resident()),
         strings(&mut rep.outputs.iter().map(|p| p.display().to_string())),
         strings(&mut rep.warnings.iter().cloned()),
     )
@@ -281,7 +117,7 @@ pub fn print_timings(t: &Timings, frames: usize) {
 /// The memory line of `--timings`: the estimate, the counted peak heap and
 /// the peak resident size.
 pub fn print_memory(est: Option<&Estimate>) {
-    use crate::memory::format_bytes;
+    use mcdenoise::runtime::memory::format_bytes;
     let mut parts = Vec::new();
     if let Some(e) = est {
         parts.push(format!(
@@ -293,10 +129,10 @@ pub fn print_memory(est: Option<&Estimate>) {
             e.bytes()
         ));
     }
-    if let Some((_, peak)) = crate::memory::heap() {
+    if let Some((_, peak)) = mcdenoise::runtime::memory::heap() {
         parts.push(format!("peak heap {} ({peak} bytes)", format_bytes(peak)));
     }
-    if let Some(rss) = crate::memory::peak_resident() {
+    if let Some(rss) = mcdenoise::runtime::memory::peak_resident() {
         parts.push(format!("peak resident {}", format_bytes(rss)));
     }
     println!("memory: {}", parts.join("; "));
@@ -317,8 +153,8 @@ pub fn score_files(out: &Path, reference: &Path) -> Result<Scores> {
     let r = load_color(reference)?;
     check_same_size(reference, (r.width, r.height), &o)?;
     Ok(metrics::score(
-        o.get(crate::frame::Buffer::Color).expect("colour"),
-        r.get(crate::frame::Buffer::Color).expect("colour"),
+        o.get(mcdenoise::io::frame::Buffer::Color).expect("colour"),
+        r.get(mcdenoise::io::frame::Buffer::Color).expect("colour"),
         o.width,
         o.height,
     ))
@@ -396,8 +232,8 @@ pub fn score_cmd(reference: &Path, out: &Path, json: bool) -> Result<()> {
         let rf = load_color(r)?;
         check_same_size(r, (rf.width, rf.height), &of)?;
         let (ov, rv) = (
-            of.get(crate::frame::Buffer::Color).expect("colour"),
-            rf.get(crate::frame::Buffer::Color).expect("colour"),
+            of.get(mcdenoise::io::frame::Buffer::Color).expect("colour"),
+            rf.get(mcdenoise::io::frame::Buffer::Color).expect("colour"),
         );
         let s = metrics::score(ov, rv, of.width, of.height);
         let fl = match &prev {
@@ -502,7 +338,7 @@ pub fn demo(settings: &Settings) -> Result<()> {
             match load_color(&r) {
                 Ok(rf) if (rf.width, rf.height) == (f.width, f.height) => scores.push(metrics::score(
                     out,
-                    rf.get(crate::frame::Buffer::Color).expect("colour"),
+                    rf.get(mcdenoise::io::frame::Buffer::Color).expect("colour"),
                     f.width,
                     f.height,
                 )),
@@ -535,9 +371,9 @@ pub fn demo(settings: &Settings) -> Result<()> {
     }
     println!("outputs and PNG previews: {}/<method>/", out_root.display());
     let reference = load_color(&dir.join("ref").join(files[last].file_name().expect("file")))?;
-    sheet.push(("reference".into(), reference.get(crate::frame::Buffer::Color).expect("colour").to_vec()));
+    sheet.push(("reference".into(), reference.get(mcdenoise::io::frame::Buffer::Color).expect("colour").to_vec()));
     let tiles: Vec<(&str, &[f32])> = sheet.iter().map(|(n, v)| (n.as_str(), v.as_slice())).collect();
-    let (rgb, sw, sh) = crate::sheet::contact_sheet(&tiles, w, h, 3, 2);
+    let (rgb, sw, sh) = mcdenoise::io::sheet::contact_sheet(&tiles, w, h, 3, 2);
     let path = out_root.join("contact-sheet.png");
     output::write_png_preview(&path, sw, sh, &rgb)?;
     println!("contact sheet of frame {last} (input, each method, reference): {}", path.display());

@@ -15,11 +15,11 @@ use clap::error::{ContextKind, ContextValue, ErrorKind};
 use clap::{Args, CommandFactory, FromArgMatches, Parser, Subcommand, ValueEnum};
 use mcdenoise_core::Isa;
 
-use crate::afn::Variant;
-use crate::error::{HostError, Result};
-use crate::methods::{MethodKind, Settings};
-use crate::nn::loss::Loss;
-use crate::precision::PrecisionKind;
+use mcdenoise::error::{HostError, Result};
+use mcdenoise::methods::afn::Variant;
+use mcdenoise::methods::{MethodKind, Settings};
+use mcdenoise::nn::loss::Loss;
+use mcdenoise::runtime::precision::PrecisionKind;
 
 /// What to do.
 #[derive(Clone, Debug, PartialEq)]
@@ -41,9 +41,9 @@ pub enum Command {
         json: bool,
     },
     /// The precision report.
-    Precision(crate::report::ReportArgs),
+    Precision(mcdenoise_kit::report::ReportArgs),
     /// Train a learned method.
-    Train(crate::train::TrainArgs),
+    Train(mcdenoise::train::TrainArgs),
     /// Print a shell completion script.
     Completions(clap_complete::Shell),
     /// Print the man page, or write one page per command into a directory.
@@ -131,8 +131,8 @@ fn firefly(s: &str) -> std::result::Result<f32, String> {
         .ok_or_else(|| format!("expected a number from 0 (off) up to 1e6, got '{s}'"))
 }
 
-fn wskp_sizes(s: &str) -> std::result::Result<crate::wskp::Sizes, String> {
-    crate::wskp::Sizes::parse(s)
+fn wskp_sizes(s: &str) -> std::result::Result<mcdenoise::methods::wskp::Sizes, String> {
+    mcdenoise::methods::wskp::Sizes::parse(s)
 }
 
 fn layers(s: &str) -> std::result::Result<usize, String> {
@@ -148,7 +148,7 @@ fn seed(s: &str) -> std::result::Result<u64, String> {
 }
 
 fn size(s: &str) -> std::result::Result<u64, String> {
-    crate::memory::parse_size(s)
+    mcdenoise::runtime::memory::parse_size(s)
 }
 
 fn frame_size(s: &str) -> std::result::Result<(usize, usize), String> {
@@ -294,7 +294,7 @@ struct SettingsCli {
     #[arg(long, value_name = "FILE", help_heading = "Learned methods")]
     weights: Option<PathBuf>,
     /// Cross: seed of the initial random weights
-    #[arg(long, value_name = "N", default_value_t = crate::cross::SEED, value_parser = seed, help_heading = "Online method (cross)")]
+    #[arg(long, value_name = "N", default_value_t = mcdenoise::methods::cross::SEED, value_parser = seed, help_heading = "Online method (cross)")]
     seed: u64,
     /// Cross: write the network's weights and Adam state here after every frame
     #[arg(long, value_name = "FILE", help_heading = "Online method (cross)")]
@@ -398,7 +398,7 @@ struct TrainCli {
     /// WSKP: the window sizes, one importance map each (one size alone: no fusion; the weights file
     /// records them and `denoise` reads them from it)
     #[arg(long, value_name = "LIST", default_value = "3,5,7,9,11,13", value_parser = wskp_sizes)]
-    sizes: crate::wskp::Sizes,
+    sizes: mcdenoise::methods::wskp::Sizes,
     /// Crops per step
     #[arg(long, value_name = "N", default_value = "8", value_parser = batch)]
     batch: usize,
@@ -463,7 +463,7 @@ struct PrecisionCli {
     threads: usize,
     /// Only these operators (comma-separated)
     #[arg(long, value_name = "OP", value_delimiter = ',',
-          value_parser = clap::builder::PossibleValuesParser::new(crate::registry::names()))]
+          value_parser = clap::builder::PossibleValuesParser::new(mcdenoise_kit::registry::names()))]
     only: Vec<String>,
     /// The CSV to write
     #[arg(long, value_name = "FILE", default_value = "mcdenoise-out/precision.csv")]
@@ -529,7 +529,7 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
             })
         }
         Some(Sub::Train(t)) => {
-            let mut a = crate::train::TrainArgs { threads: default_threads(), ..Default::default() };
+            let mut a = mcdenoise::train::TrainArgs { threads: default_threads(), ..Default::default() };
             a.method = match t.method {
                 TrainMethod::Wskp => "wskp".into(),
                 TrainMethod::Afn => "afn".into(),
@@ -561,7 +561,7 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
             Command::Train(a)
         }
         Some(Sub::Score(s)) => Command::Score { reference: s.reference, output: s.output, json: s.json },
-        Some(Sub::Precision(p)) => Command::Precision(crate::report::ReportArgs {
+        Some(Sub::Precision(p)) => Command::Precision(mcdenoise_kit::report::ReportArgs {
             frame: p.frame,
             csv: p.csv,
             svg: p.svg,

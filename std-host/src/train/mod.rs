@@ -23,15 +23,15 @@ use std::time::{Duration, Instant};
 use mcdenoise_core::{Isa, F32};
 
 use crate::error::{HostError, Result};
-use crate::frame::{Buffer, Frame, Limits};
+use crate::io::frame::{Buffer, Frame, Limits};
+use crate::io::list_inputs;
+use crate::methods::{afn, wskp};
 use crate::methods::{context, Denoiser, Settings, TemporalAccumulation, Timings};
 use crate::metrics;
 use crate::nn::loss::Loss;
 use crate::nn::weights::{self, File, Form, Tensor};
 use crate::nn::{Net, Nets, Rng, Trainer, Workspace};
-use crate::precision::PrecisionKind;
-use crate::run::list_inputs;
-use crate::{afn, wskp};
+use crate::runtime::precision::PrecisionKind;
 
 /// Options of `mcdenoise train`.
 #[derive(Clone, Debug, PartialEq)]
@@ -293,7 +293,7 @@ impl Model {
     }
     /// The sequences' samples.
     fn samples(self, seqs: &[Sequence], threads: usize, isa: Isa) -> Result<Vec<Sample>> {
-        let pool = crate::par::Pool::new(threads).map_err(HostError::Usage)?;
+        let pool = crate::runtime::par::Pool::new(threads).map_err(HostError::Usage)?;
         let (cin, own) = self.planes();
         let mut out = Vec::new();
         for s in seqs {
@@ -454,7 +454,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             Model::Afn(_) => afn::crop_buffers(wss),
         }
     }
-    let pool = crate::par::Pool::new(a.threads).map_err(HostError::Usage)?;
+    let pool = crate::runtime::par::Pool::new(a.threads).map_err(HostError::Usage)?;
     let ckpt = checkpoint_path(&a.out);
     let start = Instant::now();
     let mut last_ckpt = Instant::now();

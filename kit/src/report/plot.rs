@@ -5,8 +5,8 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use super::{ReportArgs, Row};
-use crate::error::{HostError, Result};
-use crate::output::atomic_write;
+use mcdenoise::error::{HostError, Result};
+use mcdenoise::io::output::atomic_write;
 
 pub(super) fn write_csv(path: &Path, rows: &[Row], a: &ReportArgs) -> Result<()> {
     let mut s = String::from("op,precision,isa,width,height,threads,ms,ms_per_mpx,max_abs,mean_rel,psnr_db\n");

@@ -4,8 +4,10 @@
 
 use std::process::ExitCode;
 
-use mcdenoise::cli::{self, Command};
-use mcdenoise::{cleanup, memory, run, HostError};
+use mcdenoise::runtime::{cleanup, memory};
+use mcdenoise::HostError;
+use mcdenoise_cli::cli::{self, Command};
+use mcdenoise_cli::commands as run;
 
 /// Counts the heap (for `--timings` and the memory tests) and turns a failed
 /// allocation into one line and exit 1 instead of an abort.
@@ -47,7 +49,7 @@ fn main() -> ExitCode {
         Ok(Command::Demo { settings }) => run::demo(&settings),
         Ok(Command::Denoise(a)) => run::denoise_cmd(&a),
         Ok(Command::Score { reference, output, json }) => run::score_cmd(&reference, &output, json),
-        Ok(Command::Precision(a)) => mcdenoise::report::run(&a).map(|_| ()),
+        Ok(Command::Precision(a)) => mcdenoise_kit::report::run(&a).map(|_| ()),
         Ok(Command::Train(a)) => mcdenoise::train::run(&a),
         Err(e) => Err(e),
     };

@@ -26,9 +26,6 @@
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
-use crate::error::{HostError, Result};
-use crate::frame::{FrameInfo, READ_BUFFER_BYTES};
-
 /// Parses a size: a whole or decimal number, optionally followed by `K`,
 /// `M`, `G` or `T` (powers of 1024; `KiB`, `MB` and the like mean the same;
 /// any case), or `B` for bytes.
@@ -125,49 +122,6 @@ pub struct Footprint {
 /// progress bar, argument and path strings, the per-band job lists).
 pub const BASELINE_BYTES: u64 = 8 << 20;
 
-/// The estimate of one frame's peak heap.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Estimate {
-    /// Pixels of the frame.
-    pub pixels: u64,
-    /// The frame's planes, bytes per pixel.
-    pub frame: u64,
-    /// The method's footprint.
-    pub method: Footprint,
-    /// Bytes per pixel while an output is written (the output, the PNG preview).
-    pub writer: u64,
-    /// Bytes per pixel at the peak: `frame + max(method.peak, method.kept + writer)`.
-    pub per_pixel: u64,
-    /// Bytes not proportional to the pixels: scratch, the largest block the
-    /// loader or the writer holds, the baseline.
-    pub fixed: u64,
-}
-
-impl Estimate {
-    /// The estimate for `info`'s frames through a method of footprint
-    /// `method`; `half` and `png` as the output options.
-    pub fn new(info: &FrameInfo, method: Footprint, half: bool, png: bool) -> Estimate {
-        let frame = 4 * info.planes() as u64;
-        // The PNG's 8-bit image, and the encoder's filtered and compressed copies of it.
-        let writer = 12 + if png { 3 + 2 * 3 } else { 0 };
-        let per_pixel = frame + method.peak.max(method.kept + writer);
-        let w = info.width as u64;
-        // One decoded block and its compressed chunk (each read into a
-        // vector that may grow to twice its length), and the read buffer.
-        let loader = 2 * info.chunk_bytes + 2 * info.block_bytes + READ_BUFFER_BYTES as u64;
-        // One ZIP block of 16 rows of the output, raw and compressed, its
-        // samples reordered once, and the write buffer.
-        let writer_fixed = 3 * 16 * w * if half { 6 } else { 12 } + (1 << 16);
-        let fixed = method.scratch + loader.max(writer_fixed) + BASELINE_BYTES;
-        Estimate { pixels: info.pixels(), frame, method, writer, per_pixel, fixed }
-    }
-
-    /// The estimate in bytes.
-    pub fn bytes(&self) -> u64 {
-        self.per_pixel.saturating_mul(self.pixels).saturating_add(self.fixed)
-    }
-}
-
 /// A limit on the memory of a run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum LimitKind {
@@ -193,7 +147,8 @@ pub struct Limit {
 }
 
 impl Limit {
-    fn describe(&self) -> String {
+    /// The limit in words, for an error message.
+    pub fn describe(&self) -> String {
         match self.kind {
             LimitKind::Flag => format!("--max-memory {}", format_bytes(self.total)),
             LimitKind::Available => {
@@ -254,27 +209,6 @@ impl Budget {
     /// The tightest limit.
     pub fn tightest(&self) -> Option<Limit> {
         self.limits.iter().copied().min_by_key(|l| l.free)
-    }
-
-    /// Checks `est` against every limit: an error naming the file, the work
-    /// and the limit when it does not fit.
-    pub fn check(&self, est: &Estimate, info: &FrameInfo, work: &str) -> Result<()> {
-        match self.limits.iter().filter(|l| est.bytes() > l.free).min_by_key(|l| l.free) {
-            None => Ok(()),
-            Some(l) => Err(HostError::bad(
-                &info.path,
-                format!(
-                    "{work} needs about {} for this {}x{} frame ({} bytes per pixel + {}), more than {}; \
-                     refused before reading its pixels",
-                    format_bytes(est.bytes()),
-                    info.width,
-                    info.height,
-                    est.per_pixel,
-                    format_bytes(est.fixed),
-                    l.describe()
-                ),
-            )),
-        }
     }
 }
 
@@ -414,7 +348,7 @@ fn out_of_memory(size: usize) -> ! {
             Ok(())
         }
     }
-    let removed = crate::cleanup::remove_all_now();
+    let removed = crate::runtime::cleanup::remove_all_now();
     let mut line = Line { buf: [0; 320], len: 0 };
     let _ = std::fmt::Write::write_fmt(
         &mut line,

@@ -11,7 +11,7 @@
 //! refinement):
 //! - everything is filtered in demodulated irradiance `c = x / (albedo +
 //!   EPS)` and remodulated at the end, as the paper's loss on `o * albedo`
-//!   (in fixed point, emitters by 1, as WSKP's [`crate::wskp::inputs`]);
+//!   (in fixed point, emitters by 1, as WSKP's [`crate::methods::wskp::inputs`]);
 //! - network input (13 channels): `clamp(r, 0, 1)^(1/2.2)` of the 1-spp and
 //!   of the TA radiance (3 + 3), albedo (3), `n * 0.5 + 0.5` (3), depth
 //!   normalised over the frame (1);
@@ -37,14 +37,14 @@ use mcdenoise_core::unfold::{self, grad as ugrad};
 use mcdenoise_core::{Isa, View, ViewMut, F32};
 
 use crate::error::{HostError, Result};
-use crate::frame::{Buffer, Frame};
+use crate::io::frame::{Buffer, Frame};
 use crate::methods::{Ctx, Denoiser, Plan, TemporalAccumulation, Timings};
 use crate::nn::infer::Inference;
 use crate::nn::loss::Loss;
 use crate::nn::weights::File;
 use crate::nn::{Conv, Layer, Net, NetDesc, Nets, Workspace};
-use crate::par::Pool;
-use crate::precision::{HostPrecision, Kind, Planes};
+use crate::runtime::par::Pool;
+use crate::runtime::precision::{HostPrecision, Kind, Planes};
 
 /// Albedo epsilon of the (de)modulation.
 pub const EPS: f32 = 0.01;
@@ -137,7 +137,7 @@ pub fn check_inputs(f: &Frame) -> Result<()> {
 /// A frame's tensors from its accumulated radiance `t`: the network input
 /// `x` (13 planes), the demodulated 1-spp and TA irradiance `c1`, `ct` (3
 /// each) and the remodulation albedo `alb` (3, `a + EPS`); `emitters` as
-/// for [`crate::wskp::inputs`].
+/// for [`crate::methods::wskp::inputs`].
 #[allow(clippy::too_many_arguments)]
 pub fn inputs(
     pool: &Pool,
@@ -518,14 +518,14 @@ impl<P: HostPrecision> Afn<P> {
         Self::from_params(first, params, refine, variant)
     }
 
-    /// Memory per frame (see [`crate::memory`]): the accumulation, the f32
+    /// Memory per frame (see [`crate::runtime::memory`]): the accumulation, the f32
     /// buffers kept, the kernel predictor's tensors (kept for the next frame:
     /// full scale 12 + 44 + 16 planes, half 24 + 56 + 32 + 49, quarter 32 +
     /// 32), the half-scale kernels, the stored irradiance, the filtered and
     /// fused images, the refinement and its tensors; the full-scale kernels
     /// stream in bands (scratch, not per pixel).
-    pub fn footprint(info: &crate::frame::FrameInfo, threads: usize) -> crate::memory::Footprint {
-        use crate::precision::store_bytes;
+    pub fn footprint(info: &crate::io::frame::FrameInfo, threads: usize) -> crate::runtime::memory::Footprint {
+        use crate::runtime::precision::store_bytes;
         let s = store_bytes::<P>();
         use crate::nn::infer::{held_bytes_per_pixel, ranges_bytes_per_pixel, tensors_bytes_per_pixel};
         let bufs = 4 * (CIN as u64 + 9);
@@ -537,7 +537,7 @@ impl<P: HostPrecision> Afn<P> {
         let k1 = (TAPS as u64 * s).div_ceil(4);
         // After the networks ran: kernels, c1 ct, d1 f1, fused; i decoded;
         // refinement input, output, r decoded.
-        let tail = |l: &mut crate::memory::Ledger| {
+        let tail = |l: &mut crate::runtime::memory::Ledger| {
             l.alloc(k1).alloc(6 * s).alloc((6 * s).div_ceil(4)).alloc(3 * s);
             l.alloc(12).free(3 * s);
             l.alloc(4 * RIN as u64 + RIN as u64 * s).alloc(12).temp(12);
@@ -546,7 +546,7 @@ impl<P: HostPrecision> Afn<P> {
         // fixed point, the f32 range runs: the body's tensors kept while the
         // refinement's run), the encoded input and the networks' tensors as
         // they are made.
-        let mut first = crate::memory::Ledger::default();
+        let mut first = crate::runtime::memory::Ledger::default();
         let history = TemporalAccumulation::<P>::step_ledger(info, &mut first);
         first.alloc(12).alloc(bufs);
         if P::NAME == "fixed" {
@@ -559,14 +559,14 @@ impl<P: HostPrecision> Afn<P> {
         tail(&mut first);
         // Every later frame: what the frame before kept, then the
         // accumulation's step on top of it and the rest of the frame.
-        let mut later = crate::memory::Ledger::default();
+        let mut later = crate::runtime::memory::Ledger::default();
         later.alloc(bufs + CIN as u64 * s + body + refine_net);
         TemporalAccumulation::<P>::step_ledger(info, &mut later);
         later.alloc(12);
         tail(&mut later);
         let w = info.width;
         let sl = stream_scratch_len::<P>(w, STREAM_ROWS).max(unfold::scratch_len::<P>(K, 3, w));
-        crate::memory::Footprint {
+        crate::runtime::memory::Footprint {
             kept: history + 12 + bufs + CIN as u64 * s + body + refine_net,
             peak: first.peak().max(later.peak()),
             scratch: 4 * threads as u64 * sl as u64,

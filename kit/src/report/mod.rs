@@ -16,10 +16,10 @@ use std::time::{Duration, Instant};
 
 use mcdenoise_core::Isa;
 
-use crate::error::{HostError, Result};
-use crate::frame::{Frame, Limits};
-use crate::par::Pool;
 use crate::registry::{self, Config, Inputs, Layout};
+use mcdenoise::error::{HostError, Result};
+use mcdenoise::io::frame::{Frame, Limits};
+use mcdenoise::runtime::par::Pool;
 
 mod plot;
 

@@ -23,11 +23,11 @@ use mcdenoise_core::temporal::{self, TemporalInputs, TemporalParams};
 use mcdenoise_core::tonemap::{self, Map};
 use mcdenoise_core::{fixed, unfold, F16Arith, Fixed, Isa, Result as CoreResult, View, ViewMut, F16, F32};
 
-use crate::error::Result;
-use crate::frame::{Buffer, Frame};
 use crate::oracle;
-use crate::par::{Pool, Scratch};
-use crate::precision::{frac_for_max, HostPrecision, Kind, PrecisionKind};
+use mcdenoise::error::Result;
+use mcdenoise::io::frame::{Buffer, Frame};
+use mcdenoise::runtime::par::{Pool, Scratch};
+use mcdenoise::runtime::precision::{frac_for_max, HostPrecision, Kind, PrecisionKind};
 
 /// The f32 planes every operator draws its inputs from.
 #[derive(Clone, Debug)]
@@ -586,7 +586,7 @@ impl Op {
     /// Stores the inputs in precision `p` and allocates the output; an error
     /// when the operator does not run in `p` (not one of [`Op::precisions`]).
     pub fn prepare(&self, p: PrecisionKind, cfg: Config, i: &Inputs) -> Result<Box<dyn Prepared>> {
-        let missing = || crate::HostError::Usage(format!("operator {} does not run in {}", self.name, p.name()));
+        let missing = || mcdenoise::HostError::Usage(format!("operator {} does not run in {}", self.name, p.name()));
         Ok(match p {
             PrecisionKind::F32 => Box::new(self.job::<F32>((self.prep.f32)(), cfg, i)),
             PrecisionKind::F16 => Box::new(self.job::<F16>((self.prep.f16.ok_or_else(missing)?)(), cfg, i)),

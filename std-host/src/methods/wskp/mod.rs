@@ -21,13 +21,13 @@ use mcdenoise_core::softmax::{self, grad as sgrad, FusedInputs, WindowPath};
 use mcdenoise_core::{View, ViewMut, F32};
 
 use crate::error::{HostError, Result};
-use crate::frame::{Buffer, Frame};
+use crate::io::frame::{Buffer, Frame};
 use crate::methods::{Ctx, Denoiser, Plan, TemporalAccumulation, Timings};
 use crate::nn::infer::Inference;
 use crate::nn::loss::Loss;
 use crate::nn::weights::File;
 use crate::nn::{Conv, Layer, Net, NetDesc, Workspace};
-use crate::precision::{HostPrecision, Kind, Planes};
+use crate::runtime::precision::{HostPrecision, Kind, Planes};
 
 /// Albedo epsilon of the (de)modulation.
 pub const EPS: f32 = 0.01;
@@ -146,7 +146,7 @@ pub fn check_inputs(f: &Frame) -> Result<()> {
 /// lights in view, so f32 and f16 run without it until they are retrained.
 #[allow(clippy::too_many_arguments)]
 pub fn inputs(
-    pool: &crate::par::Pool,
+    pool: &crate::runtime::par::Pool,
     isa: mcdenoise_core::Isa,
     f: &Frame,
     t: &[f32],
@@ -295,15 +295,19 @@ impl<P: HostPrecision> Wskp<P> {
         Self::from_params(first, net, params, layers, sizes)
     }
 
-    /// Memory per frame (see [`crate::memory`]): the accumulation, the f32
+    /// Memory per frame (see [`crate::runtime::memory`]): the accumulation, the f32
     /// buffers kept (and their copies in another storage), the network's
     /// tensors (kept for the next frame), the output. The first frame in
     /// fixed point runs the network in f32 once for the formats, every
     /// tensor kept and each decoded in turn;
     /// every later frame runs the accumulation's step on top of what the
     /// first one kept.
-    pub fn footprint(info: &crate::frame::FrameInfo, layers: usize, threads: usize) -> crate::memory::Footprint {
-        use crate::precision::{store_bytes, store_is};
+    pub fn footprint(
+        info: &crate::io::frame::FrameInfo,
+        layers: usize,
+        threads: usize,
+    ) -> crate::runtime::memory::Footprint {
+        use crate::runtime::precision::{store_bytes, store_is};
         let s = store_bytes::<P>();
         let f32s = store_is::<P, f32>();
         let bufs = 4 * (3 + 10 + 3 + 3);
@@ -311,13 +315,13 @@ impl<P: HostPrecision> Wskp<P> {
         // Another layer count is refused when the method is built.
         let network = net(if layers == 3 { 3 } else { 6 }).expect("3 or 6 layers");
         let net = crate::nn::infer::held_bytes_per_pixel(&network, s);
-        let output = |l: &mut crate::memory::Ledger| {
+        let output = |l: &mut crate::runtime::memory::Ledger| {
             l.alloc(12);
             if !f32s {
                 l.temp(3 * s);
             }
         };
-        let mut first = crate::memory::Ledger::default();
+        let mut first = crate::runtime::memory::Ledger::default();
         let history = TemporalAccumulation::<P>::step_ledger(info, &mut first);
         first.alloc(bufs);
         if P::NAME == "fixed" {
@@ -325,14 +329,14 @@ impl<P: HostPrecision> Wskp<P> {
         }
         first.alloc(stored + net);
         output(&mut first);
-        let mut later = crate::memory::Ledger::default();
+        let mut later = crate::runtime::memory::Ledger::default();
         later.alloc(bufs + stored + net);
         TemporalAccumulation::<P>::step_ledger(info, &mut later);
         output(&mut later);
         let w = info.width;
         let sl = softmax::fused_scratch_len::<P>(WindowPath::Separable, &SIZES, 3, w)
             .max(mcdenoise_core::conv::conv2d_scratch_len::<P>(5, 14, 14, w));
-        crate::memory::Footprint {
+        crate::runtime::memory::Footprint {
             kept: history + bufs + stored + net,
             peak: first.peak().max(later.peak()),
             scratch: 4 * threads as u64 * sl as u64,

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use mcdenoise::output::write_exr_rows;
+use mcdenoise::io::output::write_exr_rows;
 
 /// The `mcdenoise` binary.
 pub fn bin() -> Command {

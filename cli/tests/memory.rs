@@ -78,7 +78,7 @@ fn weights_for(dir: &std::path::Path, method: &str) -> Option<std::path::PathBuf
     let p = dir.join(format!("{method}.safetensors"));
     match method {
         "wskp" => {
-            let net = mcdenoise::wskp::net(6).unwrap();
+            let net = mcdenoise::methods::wskp::net(6).unwrap();
             let params: Vec<f32> = net.init(1).iter().map(|v| v * 0.3).collect();
             mcdenoise::nn::weights::save_params(
                 &p,
@@ -91,9 +91,10 @@ fn weights_for(dir: &std::path::Path, method: &str) -> Option<std::path::PathBuf
             .unwrap();
         }
         "afn" => {
-            let (k, r) = (mcdenoise::afn::kernel_net().unwrap(), mcdenoise::afn::refine_net().unwrap());
+            let (k, r) =
+                (mcdenoise::methods::afn::kernel_net().unwrap(), mcdenoise::methods::afn::refine_net().unwrap());
             let rp: Vec<f32> = r.init(2).iter().map(|v| v * 0.05).collect();
-            mcdenoise::afn::save(&p, &k, &k.init(1), &r, &rp, &[]).unwrap();
+            mcdenoise::methods::afn::save(&p, &k, &k.init(1), &r, &rp, &[]).unwrap();
         }
         _ => return None,
     }

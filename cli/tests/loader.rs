@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use common::*;
 use exr::prelude::*;
-use mcdenoise::frame::{sanitize, Buffer, Frame, Limits, READ_BUFFER_BYTES};
+use mcdenoise::io::frame::{sanitize, Buffer, Frame, Limits, READ_BUFFER_BYTES};
 
 /// The frame as the `exr` crate's whole-image reader gives it (the
 /// loader's previous implementation): the first layer, largest level,

@@ -1,7 +1,7 @@
 //! Outputs in flight, and what becomes of them when the run stops early.
 //!
 //! Every output is written to a temporary file beside it and renamed into
-//! place ([`crate::output::atomic_write_file`]). The temporary files that
+//! place ([`crate::io::output::atomic_write_file`]). The temporary files that
 //! exist at any moment are registered here, so that whatever ends the run
 //! removes them:
 //! - a failed write drops its [`TempFile`], which deletes it;
@@ -9,7 +9,7 @@
 //!   on the signal, takes the registry's lock (so no rename or new temporary
 //!   can happen after it), deletes every registered file, prints one line
 //!   and exits with 128 + the signal (130, 143);
-//! - an allocation that fails: [`crate::memory::CountingAlloc`] calls
+//! - an allocation that fails: [`crate::runtime::memory::CountingAlloc`] calls
 //!   [`remove_all_now`], which needs no memory, then exits 1.
 //!
 //! A temporary is created (`O_EXCL`, a name no other process uses) and
@@ -20,10 +20,13 @@
 use std::ffi::CString;
 use std::fs::File;
 use std::io;
+use std::io::Write as _;
 use std::os::unix::ffi::OsStrExt;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
+
+use crate::error::{HostError, Result};
 
 /// The registered temporary files.
 struct Registry {
@@ -178,4 +181,53 @@ pub fn install_signal_handlers() -> io::Result<()> {
         }
     })?;
     Ok(())
+}
+
+/// Writes `path` atomically: `write` fills a new temporary file next to it
+/// (registered in [`crate::runtime::cleanup`], so an interrupted run removes it),
+/// which is flushed and renamed over `path` only when `write` succeeded.
+/// On any failure the temporary file is gone and `path` is as it was.
+pub fn atomic_write_file(
+    path: &Path,
+    write: impl FnOnce(&mut std::io::BufWriter<&mut std::fs::File>) -> std::result::Result<(), String>,
+) -> Result<()> {
+    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let name = path.file_name().ok_or_else(|| HostError::write(path, "no file name"))?;
+    let (tmp, mut file) = TempFile::create(dir, name).map_err(|e| write_error(path, &e))?;
+    let mut buffered = std::io::BufWriter::with_capacity(1 << 16, &mut file);
+    write(&mut buffered)
+        .and_then(|()| buffered.flush().map_err(|e| io_reason(&e)))
+        .map_err(|e| HostError::write(path, e))?;
+    drop(buffered);
+    drop(file);
+    tmp.commit(path).map_err(|e| write_error(path, &e))
+}
+
+/// Writes `path` atomically through a writer that takes the temporary
+/// file's path (it already exists, empty). Prefer [`atomic_write_file`]:
+/// between a signal's removal of the temporary file and the exit, a writer
+/// that reopens it by path could create it again.
+pub fn atomic_write(path: &Path, write: impl FnOnce(&Path) -> std::result::Result<(), String>) -> Result<()> {
+    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let name = path.file_name().ok_or_else(|| HostError::write(path, "no file name"))?;
+    let (tmp, file) = TempFile::create(dir, name).map_err(|e| write_error(path, &e))?;
+    drop(file);
+    write(tmp.path()).map_err(|e| HostError::write(path, e))?;
+    tmp.commit(path).map_err(|e| write_error(path, &e))
+}
+
+/// The reason of a failed write in words a user acts on: the OS text, led
+/// by what it means where that is not plain (a full disk, the file-size
+/// limit).
+pub fn io_reason(e: &std::io::Error) -> String {
+    let hint = match e.raw_os_error() {
+        Some(libc::ENOSPC) => "the disk is full: ",
+        Some(libc::EFBIG) => "the file-size limit (ulimit -f) is reached: ",
+        _ => "",
+    };
+    format!("{hint}{e}")
+}
+
+fn write_error(path: &Path, e: &std::io::Error) -> HostError {
+    HostError::write(path, io_reason(e))
 }

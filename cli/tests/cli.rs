@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use mcdenoise::output::write_exr;
+use mcdenoise::io::output::write_exr;
 
 fn bin() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_mcdenoise"));
@@ -194,7 +194,7 @@ fn a_failed_write_leaves_nothing_behind() {
     let target = t.path().join("out.exr");
     std::fs::write(&target, b"previous result").unwrap();
     // The writer fails half-way: the previous file stays, no temporary is left.
-    let e = mcdenoise::output::atomic_write(&target, |tmp| {
+    let e = mcdenoise::io::output::atomic_write(&target, |tmp| {
         std::fs::write(tmp, b"half").unwrap();
         Err("disk full".into())
     })
@@ -417,13 +417,13 @@ fn denoise_summary_json_and_quiet() {
 /// builds otherwise, where the fuzz target would trip over them).
 #[test]
 fn the_definition_is_consistent() {
-    mcdenoise::cli::definition().debug_assert();
+    mcdenoise_cli::cli::definition().debug_assert();
 }
 
 /// The parser is a pure function: no command runs, defaults are filled in.
 #[test]
 fn parse_is_a_function_of_the_arguments() {
-    use mcdenoise::cli::{parse, Command};
+    use mcdenoise_cli::cli::{parse, Command};
     use std::ffi::OsString;
     let args = |v: &[&str]| v.iter().map(OsString::from).collect::<Vec<_>>();
     assert!(matches!(parse(args(&[])), Ok(Command::Demo { .. })));
@@ -445,7 +445,7 @@ fn parse_is_a_function_of_the_arguments() {
     ])) {
         Ok(Command::Denoise(d)) => {
             assert_eq!(d.method, mcdenoise::methods::MethodKind::Afn);
-            assert_eq!(d.settings.precision, mcdenoise::precision::PrecisionKind::Fixed);
+            assert_eq!(d.settings.precision, mcdenoise::runtime::precision::PrecisionKind::Fixed);
             assert_eq!((d.settings.threads, d.settings.refine, d.settings.layers), (3, false, 6));
             assert_eq!(d.inputs.len(), 2);
             assert_eq!(d.max_memory, Some(1 << 30));
@@ -469,7 +469,7 @@ fn parse_is_a_function_of_the_arguments() {
         Ok(Command::Train(t)) => {
             assert_eq!((t.method.as_str(), t.steps, t.minutes, t.batch, t.crop), ("wskp", None, Some(2.0), 8, 128));
             assert_eq!(t.loss, mcdenoise::nn::loss::Loss::RelMse);
-            assert_eq!(t.variant, mcdenoise::afn::Variant::OneSppOnly);
+            assert_eq!(t.variant, mcdenoise::methods::afn::Variant::OneSppOnly);
         }
         other => panic!("{other:?}"),
     }

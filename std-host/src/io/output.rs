@@ -4,62 +4,12 @@
 //! half-written file; no output may land on an input.
 
 use std::collections::HashSet;
-use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
 use exr::prelude::*;
 
-use crate::cleanup::TempFile;
 use crate::error::{HostError, Result};
-
-/// Writes `path` atomically: `write` fills a new temporary file next to it
-/// (registered in [`crate::cleanup`], so an interrupted run removes it),
-/// which is flushed and renamed over `path` only when `write` succeeded.
-/// On any failure the temporary file is gone and `path` is as it was.
-pub fn atomic_write_file(
-    path: &Path,
-    write: impl FnOnce(&mut std::io::BufWriter<&mut std::fs::File>) -> std::result::Result<(), String>,
-) -> Result<()> {
-    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let name = path.file_name().ok_or_else(|| HostError::write(path, "no file name"))?;
-    let (tmp, mut file) = TempFile::create(dir, name).map_err(|e| write_error(path, &e))?;
-    let mut buffered = std::io::BufWriter::with_capacity(1 << 16, &mut file);
-    write(&mut buffered)
-        .and_then(|()| buffered.flush().map_err(|e| io_reason(&e)))
-        .map_err(|e| HostError::write(path, e))?;
-    drop(buffered);
-    drop(file);
-    tmp.commit(path).map_err(|e| write_error(path, &e))
-}
-
-/// Writes `path` atomically through a writer that takes the temporary
-/// file's path (it already exists, empty). Prefer [`atomic_write_file`]:
-/// between a signal's removal of the temporary file and the exit, a writer
-/// that reopens it by path could create it again.
-pub fn atomic_write(path: &Path, write: impl FnOnce(&Path) -> std::result::Result<(), String>) -> Result<()> {
-    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let name = path.file_name().ok_or_else(|| HostError::write(path, "no file name"))?;
-    let (tmp, file) = TempFile::create(dir, name).map_err(|e| write_error(path, &e))?;
-    drop(file);
-    write(tmp.path()).map_err(|e| HostError::write(path, e))?;
-    tmp.commit(path).map_err(|e| write_error(path, &e))
-}
-
-/// The reason of a failed write in words a user acts on: the OS text, led
-/// by what it means where that is not plain (a full disk, the file-size
-/// limit).
-pub fn io_reason(e: &std::io::Error) -> String {
-    let hint = match e.raw_os_error() {
-        Some(libc::ENOSPC) => "the disk is full: ",
-        Some(libc::EFBIG) => "the file-size limit (ulimit -f) is reached: ",
-        _ => "",
-    };
-    format!("{hint}{e}")
-}
-
-fn write_error(path: &Path, e: &std::io::Error) -> HostError {
-    HostError::write(path, io_reason(e))
-}
+pub use crate::runtime::cleanup::{atomic_write, atomic_write_file, io_reason};
 
 /// The reason of an `exr` write error (its I/O errors explained as above).
 fn exr_reason(e: exr::error::Error) -> String {
@@ -182,9 +132,9 @@ pub fn prepare_outputs(dir: &Path, inputs: &[PathBuf], outputs: &[PathBuf]) -> R
     if dir.exists() && !dir.is_dir() {
         return Err(HostError::write(dir, "exists and is not a directory"));
     }
-    std::fs::create_dir_all(dir).map_err(|e| write_error(dir, &e))?;
+    std::fs::create_dir_all(dir).map_err(|e| HostError::write(dir, io_reason(&e)))?;
     // A registered temporary file, removed at once (and by a signal).
-    TempFile::create(dir, std::ffi::OsStr::new("mcdenoise-probe"))
+    crate::runtime::cleanup::TempFile::create(dir, std::ffi::OsStr::new("mcdenoise-probe"))
         .map_err(|e| HostError::write(dir, format!("directory is not writable ({})", io_reason(&e))))?;
     let canon = |p: &Path| std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf());
     let ins: HashSet<PathBuf> = inputs.iter().map(|p| canon(p)).collect();

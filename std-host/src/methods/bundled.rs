@@ -8,10 +8,10 @@ use crate::error::{HostError, Result};
 use crate::nn::weights::File;
 
 /// The 3- and 6-layer ImportanceNets, trained by `tools/train-all.sh` (docs/training.md).
-const WSKP3: &[u8] = include_bytes!("../weights/wskp3.safetensors");
-const WSKP6: &[u8] = include_bytes!("../weights/wskp6.safetensors");
+const WSKP3: &[u8] = include_bytes!("../../weights/wskp3.safetensors");
+const WSKP6: &[u8] = include_bytes!("../../weights/wskp6.safetensors");
 /// AFN's kernel predictor and refinement network, trained the same way.
-const AFN: &[u8] = include_bytes!("../weights/afn.safetensors");
+const AFN: &[u8] = include_bytes!("../../weights/afn.safetensors");
 
 /// WSKP's weights for `layers` layers.
 pub fn wskp(path: Option<&Path>, layers: usize) -> Result<File> {

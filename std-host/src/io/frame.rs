@@ -18,8 +18,8 @@ use exr::block::reader::ChunksReader;
 
 use mcdenoise_core::View;
 
-use crate::aligned::Aligned;
 use crate::error::{HostError, Result};
+use crate::runtime::aligned::Aligned;
 
 /// Finite values are clamped to `±VALUE_LIMIT` on load (and ±inf becomes it).
 pub const VALUE_LIMIT: f32 = 1.0e20;

@@ -36,11 +36,11 @@ use mcdenoise_core::temporal::{self, TemporalInputs, TemporalParams};
 use mcdenoise_core::{View, ViewMut, F32};
 
 use crate::error::{HostError, Result};
-use crate::frame::{Buffer, Frame};
+use crate::io::frame::{Buffer, Frame};
 use crate::methods::{scene_scale, Ctx, Denoiser, Plan, Timings, POSITION_TOLERANCE};
 use crate::nn::weights::{self, File, Form};
 use crate::nn::{Conv, Layer, Net, NetDesc, Trainer};
-use crate::par::Pool;
+use crate::runtime::par::Pool;
 
 /// Network input planes.
 pub const CIN: usize = 15;
@@ -167,7 +167,7 @@ fn require_b(f: &Frame) -> Result<()> {
 }
 
 impl Cross {
-    /// Memory per frame (see [`crate::memory`]), in f32 whatever the
+    /// Memory per frame (see [`crate::runtime::memory`]), in f32 whatever the
     /// precision: the per-frame buffers (56 planes with the reprojection's,
     /// the network input at the padded size), what the next frame
     /// reprojects (output and pilots, normal, position: 15), and the online
@@ -175,7 +175,7 @@ impl Cross {
     /// tensor and its gradient, the filter's 9 + 6 planes per crop), kept
     /// from frame to frame; during a frame the next frame's history beside
     /// this one's and the output.
-    pub fn footprint(info: &crate::frame::FrameInfo) -> crate::memory::Footprint {
+    pub fn footprint(info: &crate::io::frame::FrameInfo) -> crate::runtime::memory::Footprint {
         let (w, h) = (info.width.max(1), info.height.max(1));
         let (wp, hp) = (w.div_ceil(4) * 4, h.div_ceil(4) * 4);
         let (strips, crop_h) = strips(h, hp);
@@ -186,9 +186,9 @@ impl Cross {
         // 39 per-frame planes, 17 of the reprojection and screening (and a
         // byte per pixel), 15 kept for the next frame.
         let kept = 4 * (39 + 17 + 15) + 1 + input + workspaces;
-        let mut l = crate::memory::Ledger::default();
+        let mut l = crate::runtime::memory::Ledger::default();
         l.alloc(kept).alloc(4 * 15).alloc(12);
-        crate::memory::Footprint { kept, peak: l.peak(), scratch: 0 }
+        crate::runtime::memory::Footprint { kept, peak: l.peak(), scratch: 0 }
     }
 
     /// For a sequence starting with `first`; `load` continues from a saved

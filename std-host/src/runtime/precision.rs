@@ -14,8 +14,8 @@ use mcdenoise_core::tonemap::TonemapPrecision;
 use mcdenoise_core::unfold::UnfoldPrecision;
 use mcdenoise_core::{F16Arith, Fixed, Precision, View, ViewMut, F16, F32};
 
-use crate::aligned::Aligned;
 use crate::error::{HostError, Result};
+use crate::runtime::aligned::Aligned;
 
 /// The precisions a pipeline can run in, by command-line name.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]

@@ -1,0 +1,72 @@
+//! The memory a frame will take, weighed from its header before anything
+//! is allocated ([`crate::runtime::memory`] has the accounting, the limits
+//! and what they are measured against).
+
+use crate::error::{HostError, Result};
+use crate::io::frame::{FrameInfo, READ_BUFFER_BYTES};
+use crate::runtime::memory::{format_bytes, Budget, Footprint, BASELINE_BYTES};
+
+/// The estimate of one frame's peak heap.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Estimate {
+    /// Pixels of the frame.
+    pub pixels: u64,
+    /// The frame's planes, bytes per pixel.
+    pub frame: u64,
+    /// The method's footprint.
+    pub method: Footprint,
+    /// Bytes per pixel while an output is written (the output, the PNG preview).
+    pub writer: u64,
+    /// Bytes per pixel at the peak: `frame + max(method.peak, method.kept + writer)`.
+    pub per_pixel: u64,
+    /// Bytes not proportional to the pixels: scratch, the largest block the
+    /// loader or the writer holds, the baseline.
+    pub fixed: u64,
+}
+
+impl Estimate {
+    /// Checks the estimate against every limit of `budget`: an error naming the file, the work
+    /// and the limit when it does not fit.
+    pub fn check(&self, budget: &Budget, info: &FrameInfo, work: &str) -> Result<()> {
+        let est = self;
+        match budget.limits.iter().filter(|l| est.bytes() > l.free).min_by_key(|l| l.free) {
+            None => Ok(()),
+            Some(l) => Err(HostError::bad(
+                &info.path,
+                format!(
+                    "{work} needs about {} for this {}x{} frame ({} bytes per pixel + {}), more than {}; \
+                     refused before reading its pixels",
+                    format_bytes(est.bytes()),
+                    info.width,
+                    info.height,
+                    est.per_pixel,
+                    format_bytes(est.fixed),
+                    l.describe()
+                ),
+            )),
+        }
+    }
+
+    /// The estimate for `info`'s frames through a method of footprint
+    /// `method`; `half` and `png` as the output options.
+    pub fn new(info: &FrameInfo, method: Footprint, half: bool, png: bool) -> Estimate {
+        let frame = 4 * info.planes() as u64;
+        // The PNG's 8-bit image, and the encoder's filtered and compressed copies of it.
+        let writer = 12 + if png { 3 + 2 * 3 } else { 0 };
+        let per_pixel = frame + method.peak.max(method.kept + writer);
+        let w = info.width as u64;
+        // One decoded block and its compressed chunk (each read into a
+        // vector that may grow to twice its length), and the read buffer.
+        let loader = 2 * info.chunk_bytes + 2 * info.block_bytes + READ_BUFFER_BYTES as u64;
+        // One ZIP block of 16 rows of the output, raw and compressed, its
+        // samples reordered once, and the write buffer.
+        let writer_fixed = 3 * 16 * w * if half { 6 } else { 12 } + (1 << 16);
+        let fixed = method.scratch + loader.max(writer_fixed) + BASELINE_BYTES;
+        Estimate { pixels: info.pixels(), frame, method, writer, per_pixel, fixed }
+    }
+
+    /// The estimate in bytes.
+    pub fn bytes(&self) -> u64 {
+        self.per_pixel.saturating_mul(self.pixels).saturating_add(self.fixed)
+    }
+}
