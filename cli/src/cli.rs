@@ -302,6 +302,16 @@ struct SettingsCli {
     /// Cross: start from a saved state instead of random weights
     #[arg(long, value_name = "FILE", help_heading = "Online method (cross)")]
     load_state: Option<PathBuf>,
+    /// Cross: Adam's learning rate of the one step per frame
+    #[arg(long, value_name = "LR", default_value_t = mcdenoise::methods::cross::LR, value_parser = learning_rate, help_heading = "Online method (cross)")]
+    cross_lr: f32,
+    /// Cross: no temporal reuse (no reprojection, no temporal loss; an ablation)
+    #[arg(long, help_heading = "Online method (cross)")]
+    cross_spatial_only: bool,
+    /// AFN: hold the full-scale kernel maps whole instead of streaming them in bands (to measure what
+    /// streaming saves; counted in the memory estimate)
+    #[arg(long, help_heading = "Learned methods")]
+    afn_whole_maps: bool,
 }
 
 impl SettingsCli {
@@ -321,6 +331,9 @@ impl SettingsCli {
         s.seed = self.seed;
         s.save_state = self.save_state;
         s.load_state = self.load_state;
+        s.cross_lr = self.cross_lr;
+        s.cross_spatial_only = self.cross_spatial_only;
+        s.afn_whole_maps = self.afn_whole_maps;
         s
     }
 }

@@ -283,7 +283,7 @@ pub struct Tensor<T> {
 /// The poison a padding element holds.
 pub fn poison<P: HostPrecision>() -> P::Store {
     let mut v = [P::Store::default()];
-    if P::NAME == "fixed" {
+    if P::FIXED_POINT {
         // i16::MIN: never produced by the saturating kernels (they clamp to ±32767).
         *bytemuck::cast_mut::<_, [u8; 2]>(&mut v[0]) = i16::MIN.to_ne_bytes();
     } else {
@@ -605,7 +605,7 @@ impl Op {
                 let src = &i.get(inp.field)[..inp.c * iw * ih];
                 let frac = match inp.store {
                     Store::As(kind) => P::choose_frac(src, kind),
-                    Store::Logit if P::NAME == "fixed" => fixed::LOGIT_FRAC,
+                    Store::Logit if P::FIXED_POINT => fixed::LOGIT_FRAC,
                     Store::Logit => 0,
                 };
                 Tensor::encode::<P>(inp.c, iw, ih, src, frac, cfg.layout)
@@ -618,12 +618,10 @@ impl Op {
         let mut params = Vec::new();
         for (k, &f) in self.params.iter().enumerate() {
             let v = i.get(f);
-            let frac = if P::NAME != "fixed" {
+            let frac = if !P::FIXED_POINT {
                 0
             } else if k == 0 {
-                let per_out = v.len() / 14;
-                let maxsum = v.chunks(per_out).map(|c| c.iter().map(|x| x.abs()).sum::<f32>()).fold(0.0, f32::max);
-                weight_frac = ((65535.0 / maxsum.max(1e-6)).log2().floor() as i32).clamp(0, 14) as i8;
+                weight_frac = mcdenoise::nn::quant::weight_frac(v, v.len() / 14);
                 weight_frac
             } else {
                 cfg.out_frac
@@ -634,10 +632,10 @@ impl Op {
         }
         let (oc, ow, oh) = self.out_shape(w, h);
         let mut out = Tensor::filled(oc, ow, oh, cfg.layout, poison::<P>());
-        out.frac = if P::NAME == "fixed" { cfg.out_frac } else { 0 };
+        out.frac = P::frac_or_zero(cfg.out_frac);
         let out2 = self.out2.map(|(c, frac)| {
             let mut o = Tensor::filled(c, w, h, cfg.layout, poison::<P>());
-            o.frac = if P::NAME == "fixed" { frac } else { 0 };
+            o.frac = P::frac_or_zero(frac);
             o
         });
         Job {

@@ -185,6 +185,14 @@ pub struct Settings {
     pub save_state: Option<std::path::PathBuf>,
     /// Online methods: start from this saved state instead of random weights.
     pub load_state: Option<std::path::PathBuf>,
+    /// Cross: Adam's learning rate of the online step.
+    pub cross_lr: f32,
+    /// Cross: without temporal reuse (an ablation).
+    pub cross_spatial_only: bool,
+    /// AFN: hold the full-scale logits and kernels whole instead of
+    /// streaming them in bands (for measuring what streaming saves; counted
+    /// in the memory estimate).
+    pub afn_whole_maps: bool,
 }
 
 impl Default for Settings {
@@ -201,6 +209,9 @@ impl Default for Settings {
             seed: crate::methods::cross::SEED,
             save_state: None,
             load_state: None,
+            cross_lr: crate::methods::cross::LR,
+            cross_spatial_only: false,
+            afn_whole_maps: false,
         }
     }
 }
@@ -224,7 +235,11 @@ pub fn create(kind: MethodKind, settings: &Settings, first: &Frame) -> Result<Bo
             settings.seed,
             settings.load_state.as_deref(),
             settings.save_state.clone(),
-        )?;
+        )?
+        .with_learning_rate(settings.cross_lr)?;
+        if settings.cross_spatial_only {
+            c = c.spatial_only();
+        }
         if settings.precision != PrecisionKind::F32 {
             c.note_precision(settings.precision.name());
         }
@@ -250,7 +265,10 @@ fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Fr
         }
         MethodKind::Afn => {
             let file = crate::methods::bundled::afn(settings.weights.as_deref())?;
-            Box::new(crate::methods::afn::Afn::<P>::new(first, &file, settings.refine)?)
+            Box::new(
+                crate::methods::afn::Afn::<P>::new(first, &file, settings.refine)?
+                    .with_whole_maps(settings.afn_whole_maps),
+            )
         }
         MethodKind::Cross => unreachable!("built above"),
     })
@@ -275,7 +293,7 @@ fn footprint_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, info: &
         MethodKind::Atrous => Atrous::<P>::footprint(info, false, settings),
         MethodKind::SureAtrous => Atrous::<P>::footprint(info, true, settings),
         MethodKind::Wskp => crate::methods::wskp::Wskp::<P>::footprint(info, settings.layers, settings.threads),
-        MethodKind::Afn => crate::methods::afn::Afn::<P>::footprint(info, settings.threads),
+        MethodKind::Afn => crate::methods::afn::Afn::<P>::footprint(info, settings.threads, settings.afn_whole_maps),
         MethodKind::Cross => crate::methods::cross::Cross::footprint(info),
     }
 }

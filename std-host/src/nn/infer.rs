@@ -135,7 +135,7 @@ impl<P: HostPrecision> Inference<P> {
         if let (Some(f), Some(last)) = (out_frac, fracs.last_mut()) {
             *last = f;
         }
-        if P::NAME != "fixed" {
+        if !P::FIXED_POINT {
             fracs.iter_mut().for_each(|f| *f = 0);
         } else {
             // A concatenation holds both parts' ranges: the coarser format.
@@ -150,13 +150,7 @@ impl<P: HostPrecision> Inference<P> {
             let k = c.k();
             let mut m = vec![0.0f32; c.spec.cout * c.cin * k * k];
             net.merge(params, i, &mut m);
-            let frac = if P::NAME == "fixed" {
-                let per = c.cin * k * k;
-                let maxsum = m.chunks(per).map(|ch| ch.iter().map(|v| v.abs()).sum::<f32>()).fold(0.0, f32::max);
-                ((65535.0 / maxsum.max(1e-6)).log2().floor() as i32).clamp(0, 14) as i8
-            } else {
-                0
-            };
+            let frac = P::frac_or_zero(super::quant::weight_frac(&m, c.cin * k * k));
             let mut w = vec![P::Store::default(); m.len()];
             P::encode(&m, &mut w, frac);
             let out_t = net

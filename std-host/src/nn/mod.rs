@@ -26,6 +26,7 @@ use crate::runtime::par::Pool;
 pub mod adam;
 pub mod infer;
 pub mod loss;
+pub mod quant;
 pub mod weights;
 
 /// One convolution layer.

@@ -111,9 +111,28 @@ pub fn save_params(
     model: &str,
     meta: &[(&str, String)],
 ) -> Result<()> {
-    let owned = param_tensors(net, params, form);
-    let tensors: Vec<Tensor<'_>> =
+    save_model(path, model, &[("", net, params)], form, meta, &[])
+}
+
+/// The one writer of this crate's weights files: the networks of a model
+/// (each with the prefix of its tensor names: `""`, `"refine."`), in `form`,
+/// the metadata every file carries (`format`, `version`, `form`) followed by
+/// `meta`, and `extra` tensors (Adam's state in a checkpoint).
+pub fn save_model(
+    path: &Path,
+    model: &str,
+    nets: &[(&str, &Net, &[f32])],
+    form: Form,
+    meta: &[(&str, String)],
+    extra: &[Tensor<'_>],
+) -> Result<()> {
+    let mut owned = Vec::new();
+    for &(prefix, net, params) in nets {
+        owned.extend(param_tensors(net, params, form).into_iter().map(|(n, s, d)| (format!("{prefix}{n}"), s, d)));
+    }
+    let mut tensors: Vec<Tensor<'_>> =
         owned.iter().map(|(n, s, d)| Tensor { name: n.clone(), shape: s.clone(), data: d }).collect();
+    tensors.extend(extra.iter().map(|t| Tensor { name: t.name.clone(), shape: t.shape.clone(), data: t.data }));
     let mut all =
         vec![("format", format!("mcdenoise-{model}")), ("version", "1".to_string()), ("form", form.name().to_string())];
     all.extend(meta.iter().cloned());

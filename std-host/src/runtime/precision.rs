@@ -83,6 +83,18 @@ pub trait HostPrecision:
     /// moment to pick an image's format (fixed point sorts a copy of
     /// `|v|`), for the memory estimates.
     const FORMAT_COPY_BYTES: u64 = 0;
+    /// Fixed point: values carry a per-tensor format (fractional bits), and
+    /// formats must be chosen for the network's tensors and the filters'
+    /// inputs. The float precisions ignore formats.
+    const FIXED_POINT: bool = false;
+    /// `frac` in fixed point, 0 (no format) in the float precisions.
+    fn frac_or_zero(frac: i8) -> i8 {
+        if Self::FIXED_POINT {
+            frac
+        } else {
+            0
+        }
+    }
     /// Fractional bits to store `src` with (0 for the float precisions).
     fn choose_frac(_src: &[f32], _kind: Kind) -> i8 {
         0
@@ -190,6 +202,7 @@ pub fn percentile_abs(src: &[f32], q: f64) -> f32 {
 }
 
 impl HostPrecision for Fixed {
+    const FIXED_POINT: bool = true;
     const FORMAT_COPY_BYTES: u64 = 4;
     fn choose_frac(src: &[f32], kind: Kind) -> i8 {
         match kind {
@@ -280,7 +293,7 @@ impl<T: bytemuck::Pod + Default> Planes<T> {
         src: &[f32],
         frac: i8,
     ) -> Self {
-        let frac = if P::NAME == "fixed" { frac } else { 0 };
+        let frac = P::frac_or_zero(frac);
         let mut p = Planes::new(channels, width, height).with_frac(frac);
         P::encode(src, &mut p.data, frac);
         p

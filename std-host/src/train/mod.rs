@@ -338,24 +338,15 @@ impl Model {
     }
     /// Saves the weights (and, with `adam`, a checkpoint).
     fn save(self, path: &Path, tr: &Trainer, extra: &[(&str, String)], adam: Option<(u64, &Rng)>) -> Result<()> {
-        let mut owned = Vec::new();
-        for (k, net) in tr.nets.iter().enumerate() {
-            let prefix = if k == 0 { String::new() } else { "refine.".to_string() };
-            owned.extend(
-                weights::param_tensors(net, tr.net_params(k), Form::Branches)
-                    .into_iter()
-                    .map(|(n, s, d)| (format!("{prefix}{n}"), s, d)),
-            );
-        }
-        let mut tensors: Vec<Tensor<'_>> =
-            owned.iter().map(|(n, s, d)| Tensor { name: n.clone(), shape: s.clone(), data: d }).collect();
-        let mut meta = vec![
-            ("format", format!("mcdenoise-{}", self.name())),
-            ("version", "1".to_string()),
-            ("form", "branches".to_string()),
-        ];
-        meta.extend(self.meta());
+        let nets: Vec<(&str, &Net, &[f32])> = tr
+            .nets
+            .iter()
+            .enumerate()
+            .map(|(k, net)| (if k == 0 { "" } else { "refine." }, net, tr.net_params(k)))
+            .collect();
+        let mut meta = self.meta();
         meta.extend(extra.iter().cloned());
+        let mut tensors = Vec::new();
         if let Some((step, rng)) = adam {
             tensors.push(Tensor { name: "adam.m".into(), shape: vec![tr.adam.m.len()], data: &tr.adam.m });
             tensors.push(Tensor { name: "adam.v".into(), shape: vec![tr.adam.v.len()], data: &tr.adam.v });
@@ -365,7 +356,7 @@ impl Model {
                 ("rng", rng.state().to_string()),
             ]);
         }
-        weights::save(path, &tensors, &meta)
+        weights::save_model(path, self.name(), &nets, Form::Branches, &meta, &tensors)
     }
     /// Every network's parameters from a file of this model (flat).
     fn load(self, f: &File, nets: &[Net]) -> Result<Vec<f32>> {

@@ -450,6 +450,7 @@ pub struct Afn<P: HostPrecision> {
     ta: TemporalAccumulation<P>,
     infer: Option<Infer<P>>,
     bufs: Option<Vec<Vec<f32>>>,
+    whole_maps: bool,
 }
 
 /// The networks ready to run in `P`: the kernel predictor without its
@@ -493,15 +494,8 @@ pub fn split_params(file: &File, kn: &Net, rn: &Net) -> Result<(Vec<f32>, Vec<f3
 
 /// Saves both networks' parameters.
 pub fn save(path: &std::path::Path, kn: &Net, kp: &[f32], rn: &Net, rp: &[f32], meta: &[(&str, String)]) -> Result<()> {
-    use crate::nn::weights::{param_tensors, Form, Tensor};
-    let mut owned = param_tensors(kn, kp, Form::Branches);
-    owned.extend(param_tensors(rn, rp, Form::Branches).into_iter().map(|(n, s, d)| (format!("refine.{n}"), s, d)));
-    let tensors: Vec<Tensor<'_>> =
-        owned.iter().map(|(n, s, d)| Tensor { name: n.clone(), shape: s.clone(), data: d }).collect();
-    let mut all =
-        vec![("format", "mcdenoise-afn".to_string()), ("version", "1".to_string()), ("form", "branches".to_string())];
-    all.extend(meta.iter().cloned());
-    crate::nn::weights::save(path, &tensors, &all)
+    use crate::nn::weights::{save_model, Form};
+    save_model(path, "afn", &[("", kn, kp), ("refine.", rn, rp)], Form::Branches, meta, &[])
 }
 
 impl<P: HostPrecision> Afn<P> {
@@ -524,7 +518,13 @@ impl<P: HostPrecision> Afn<P> {
     /// 32), the half-scale kernels, the stored irradiance, the filtered and
     /// fused images, the refinement and its tensors; the full-scale kernels
     /// stream in bands (scratch, not per pixel).
-    pub fn footprint(info: &crate::io::frame::FrameInfo, threads: usize) -> crate::runtime::memory::Footprint {
+    /// With `whole_maps` ([`Afn::with_whole_maps`]), the full-scale logits
+    /// and kernels held whole for a moment are added to the peak.
+    pub fn footprint(
+        info: &crate::io::frame::FrameInfo,
+        threads: usize,
+        whole_maps: bool,
+    ) -> crate::runtime::memory::Footprint {
         use crate::runtime::precision::store_bytes;
         let s = store_bytes::<P>();
         use crate::nn::infer::{held_bytes_per_pixel, ranges_bytes_per_pixel, tensors_bytes_per_pixel};
@@ -549,7 +549,7 @@ impl<P: HostPrecision> Afn<P> {
         let mut first = crate::runtime::memory::Ledger::default();
         let history = TemporalAccumulation::<P>::step_ledger(info, &mut first);
         first.alloc(12).alloc(bufs);
-        if P::NAME == "fixed" {
+        if P::FIXED_POINT {
             first.temp(
                 ranges_bytes_per_pixel(&body_n)
                     .max(tensors_bytes_per_pixel(&body_n, 4) + ranges_bytes_per_pixel(&refine_n)),
@@ -566,9 +566,14 @@ impl<P: HostPrecision> Afn<P> {
         tail(&mut later);
         let w = info.width;
         let sl = stream_scratch_len::<P>(w, STREAM_ROWS).max(unfold::scratch_len::<P>(K, 3, w));
+        let whole = if whole_maps {
+            (4 * stream_scratch_len::<P>(w, info.height) as u64).div_ceil(info.pixels().max(1))
+        } else {
+            0
+        };
         crate::runtime::memory::Footprint {
             kept: history + 12 + bufs + CIN as u64 * s + body + refine_net,
-            peak: first.peak().max(later.peak()),
+            peak: first.peak().max(later.peak()) + whole,
             scratch: 4 * threads as u64 * sl as u64,
         }
     }
@@ -605,7 +610,16 @@ impl<P: HostPrecision> Afn<P> {
             ta,
             infer: None,
             bufs: None,
+            whole_maps: false,
         })
+    }
+
+    /// Holds the full-scale logits and kernels whole instead of streaming
+    /// them in bands (for measuring what streaming saves; the memory
+    /// estimate counts it).
+    pub fn with_whole_maps(mut self, whole: bool) -> Self {
+        self.whole_maps = whole;
+        self
     }
 }
 
@@ -635,14 +649,14 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
         }
         let [x, c1, ct, alb] = bufs.get_disjoint_mut([0, 1, 2, 3]).expect("four buffers");
         let variant = self.variant;
-        let emitters = P::NAME == "fixed";
+        let emitters = P::FIXED_POINT;
         t.time("network inputs", || inputs(&ctx.pool, isa, variant, f, &ta, x, c1, ct, alb, emitters))?;
         if self.infer.is_none() {
             let (body, head_at) = body_net(&self.kernel_net)?;
             let last = *self.kernel_net.convs.last().expect("the head is a conv");
             let (bp, hp) = self.params.0.split_at(head_at);
             let (hw, hb) = hp.split_at(last.spec.cout * last.cin);
-            let (br, rr) = if P::NAME == "fixed" {
+            let (br, rr) = if P::FIXED_POINT {
                 // The formats from an f32 run on the first frame.
                 let mut k32 = Inference::<F32>::new(&body, bp, None, None)?;
                 let br = k32.ranges(ctx, Planes::<f32>::from_vec(CIN, w, h, x.clone()))?;
@@ -658,13 +672,8 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
             };
             // The head's weights: as many fractional bits as each output's
             // bit budget allows (fixed point); its output in the logit format.
-            let head_frac = if P::NAME == "fixed" {
-                let maxsum = hw.chunks(last.cin).map(|c| c.iter().map(|v| v.abs()).sum::<f32>()).fold(0.0, f32::max);
-                ((65535.0 / maxsum.max(1e-6)).log2().floor() as i32).clamp(0, 14) as i8
-            } else {
-                0
-            };
-            let logit_frac = if P::NAME == "fixed" { mcdenoise_core::fixed::LOGIT_FRAC } else { 0 };
+            let head_frac = P::frac_or_zero(crate::nn::quant::weight_frac(hw, last.cin));
+            let logit_frac = P::frac_or_zero(mcdenoise_core::fixed::LOGIT_FRAC);
             let mut head_w = vec![P::Store::default(); hw.len()];
             P::encode(hw, &mut head_w, head_frac);
             let mut head_b = vec![P::Store::default(); hb.len()];
@@ -686,7 +695,7 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
         t.time("kernel predictor", || inf.body.run(ctx, xin))?;
         let (l1, feats) = (inf.body.output(0).view(), inf.body.output(1).view());
         // The half-scale kernels whole (a quarter of the pixels).
-        let kfrac = if P::NAME == "fixed" { mcdenoise_core::fixed::KERNEL_FRAC } else { 0 };
+        let kfrac = P::frac_or_zero(mcdenoise_core::fixed::KERNEL_FRAC);
         let mut k1 = Planes::<P::Store>::new(TAPS, wh, hh).with_frac(kfrac);
         t.time("kernel softmax", || softmax::channel_softmax::<P>(isa, &l1, &mut k1.view_mut()))?;
         let (c1s, cts) = (store::<P>(3, w, h, c1, Kind::Image), store::<P>(3, w, h, ct, Kind::Image));
@@ -702,7 +711,7 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
             act: Activation::Identity,
             weight_frac: inf.head_frac,
         };
-        let whole = std::env::var_os("MCDENOISE_AFN_WHOLE_MAPS").is_some();
+        let whole = self.whole_maps;
         t.time("filter and fuse", || -> Result<()> {
             let c1v = c1s.view();
             ctx.pool.bands(d1.view_mut(), 1, &mut ctx.scratch, 0, |b, y0, _| {
@@ -824,7 +833,7 @@ fn stream_band<P: HostPrecision>(
     let (ft, s) = carve::<P::Store>(s, 3 * rows * w);
     let conv_len = cconv::conv2d_scratch_len::<P>(1, j.feats.channels(), TAPS + 1, w);
     let (cs, s) = s.split_at_mut(conv_len);
-    let logit_frac = if P::NAME == "fixed" { mcdenoise_core::fixed::LOGIT_FRAC } else { 0 };
+    let logit_frac = P::frac_or_zero(mcdenoise_core::fixed::LOGIT_FRAC);
     let mut lv = ViewMut::new(logits, TAPS + 1, w, rows)?.with_frac(logit_frac);
     cconv::conv2d::<P>(isa, j.head, &j.feats, &mut lv, y0, cs)?;
     let lv = lv.as_view();
@@ -848,7 +857,7 @@ fn stream_band<P: HostPrecision>(
         P::decode(lp.row(0, yy), &mut l32[yy * w..(yy + 1) * w], lp.frac());
     }
     sgrad::sigmoid(isa, &View::new(l32, 1, w, rows)?, &mut ViewMut::new(a32, 1, w, rows)?)?;
-    let afrac = if P::NAME == "fixed" { mcdenoise_core::fixed::KERNEL_FRAC } else { 0 };
+    let afrac = P::frac_or_zero(mcdenoise_core::fixed::KERNEL_FRAC);
     P::encode(a32, alpha, afrac);
     let av = View::new(alpha, 1, w, rows)?.with_frac(afrac);
     // The compositor on the band as an image of its own (2x2 cells inside it).

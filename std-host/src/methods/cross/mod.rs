@@ -156,6 +156,8 @@ pub struct Cross {
     bufs: Option<Bufs>,
     save_state: Option<PathBuf>,
     seed: u64,
+    lr: f32,
+    temporal: bool,
     /// The last frame's loss.
     pub last_loss: f32,
     /// Frames seen.
@@ -242,9 +244,32 @@ impl Cross {
             bufs: None,
             save_state: save,
             seed,
+            lr: LR,
+            temporal,
             last_loss: 0.0,
             frames: 0,
         })
+    }
+
+    /// Adam's learning rate of the online step (default [`LR`], the
+    /// authors'); positive and finite, else a usage error naming it.
+    pub fn with_learning_rate(mut self, lr: f32) -> Result<Cross> {
+        if !(lr > 0.0 && lr.is_finite()) {
+            return Err(HostError::Usage(format!("--cross-lr: expected a positive finite number, got {lr}")));
+        }
+        self.lr = lr;
+        Ok(self)
+    }
+
+    /// Without the temporal reuse (no reprojection, no temporal loss term;
+    /// an ablation): the plan says so.
+    pub fn spatial_only(mut self) -> Cross {
+        if self.temporal {
+            self.temporal = false;
+            self.plan.built.retain(|s| *s != "reprojection");
+            self.plan.skipped.push(("reprojection", "--cross-spatial-only".into()));
+        }
+        self
     }
 
     /// Records that a precision other than f32 was asked for.
@@ -259,9 +284,6 @@ impl Cross {
 
     /// Writes the network's weights and Adam's state.
     pub fn save(&self, path: &std::path::Path) -> Result<()> {
-        let owned = weights::param_tensors(&self.net, self.params(), Form::Branches);
-        let mut tensors: Vec<weights::Tensor<'_>> =
-            owned.iter().map(|(n, s, d)| weights::Tensor { name: n.clone(), shape: s.clone(), data: d }).collect();
         let empty = vec![0.0f32; self.net.params];
         let (m, v, t) = match &self.trainer {
             Some(tr) => (&tr.adam.m[..], &tr.adam.v[..], tr.adam.t),
@@ -270,16 +292,12 @@ impl Cross {
                 None => (&empty[..], &empty[..], 0),
             },
         };
-        tensors.push(weights::Tensor { name: "adam.m".into(), shape: vec![self.net.params], data: m });
-        tensors.push(weights::Tensor { name: "adam.v".into(), shape: vec![self.net.params], data: v });
-        let meta = [
-            ("format", "mcdenoise-cross".to_string()),
-            ("version", "1".to_string()),
-            ("form", "branches".to_string()),
-            ("adam_t", t.to_string()),
-            ("seed", self.seed.to_string()),
+        let adam = [
+            weights::Tensor { name: "adam.m".into(), shape: vec![self.net.params], data: m },
+            weights::Tensor { name: "adam.v".into(), shape: vec![self.net.params], data: v },
         ];
-        weights::save(path, &tensors, &meta)
+        let meta = [("adam_t", t.to_string()), ("seed", self.seed.to_string())];
+        weights::save_model(path, "cross", &[("", &self.net, self.params())], Form::Branches, &meta, &adam)
     }
 }
 
@@ -433,9 +451,7 @@ impl Denoiser for Cross {
         let isa = ctx.isa;
         let (strips, crop_h) = strips(h, hp);
         if self.trainer.is_none() {
-            // MCDENOISE_CROSS_LR overrides the learning rate (for ablations only).
-            let lr = std::env::var("MCDENOISE_CROSS_LR").ok().and_then(|v| v.parse().ok()).unwrap_or(LR);
-            let mut tr = Trainer::new(self.net.clone(), self.init.clone(), strips.len(), wp, crop_h, lr, 0.0);
+            let mut tr = Trainer::new(self.net.clone(), self.init.clone(), strips.len(), wp, crop_h, self.lr, 0.0);
             if let Some((m, v, step)) = self.adam.take() {
                 tr.adam.m = m;
                 tr.adam.v = v;
@@ -505,8 +521,8 @@ impl Denoiser for Cross {
         // 2. Reprojection of the previous output and pilots.
         t.time("reprojection", || -> Result<()> {
             bufs.valid.fill(0.0);
-            // MCDENOISE_CROSS_NO_TEMPORAL=1: spatial only (for ablations).
-            if std::env::var("MCDENOISE_CROSS_NO_TEMPORAL").is_ok_and(|v| v == "1") {
+            // Spatial only (an ablation, `--cross-spatial-only`).
+            if !self.temporal {
                 return Ok(());
             }
             let Some(prev) = &self.prev else { return Ok(()) };

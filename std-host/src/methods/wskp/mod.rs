@@ -324,7 +324,7 @@ impl<P: HostPrecision> Wskp<P> {
         let mut first = crate::runtime::memory::Ledger::default();
         let history = TemporalAccumulation::<P>::step_ledger(info, &mut first);
         first.alloc(bufs);
-        if P::NAME == "fixed" {
+        if P::FIXED_POINT {
             first.temp(crate::nn::infer::ranges_bytes_per_pixel(&network));
         }
         first.alloc(stored + net);
@@ -383,11 +383,11 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
                 &bufs.ta
             }
         };
-        let emitters = P::NAME == "fixed";
+        let emitters = P::FIXED_POINT;
         t.time("network inputs", || inputs(&ctx.pool, isa, f, ta, &mut bufs.x, &mut bufs.c, &mut bufs.alb, emitters))?;
         if self.infer.is_none() {
             // Fixed point: the formats from an f32 run on the first frame.
-            let ranges = if P::NAME == "fixed" {
+            let ranges = if P::FIXED_POINT {
                 let mut f32net = Inference::<F32>::new(&self.net, &self.params, None, None)?;
                 Some(f32net.ranges(ctx, Planes::<f32>::from_vec(10, w, h, bufs.x.clone()))?)
             } else {
