@@ -345,6 +345,27 @@ CORPUS['corpus_dim'] = small(scene(
                      keys=[{'t': 0, 'translate': [-0.2, 0.3, -0.5]}, {'t': 1, 'translate': [0.2, 0.3, -0.5]}]),
     ], seed=404), (160, 96), 2, 4096)
 
+CORPUS['corpus_metals'] = dict(small(scene(
+    "corpus: what a renderer's raw albedo AOV makes of materials without a diffuse reflectance (rendered with "
+    "--albedo mitsuba): rough gold, smooth silver, rough copper and aluminium, glass; near-black paint (albedo "
+    "0.001, 0.004 and 0.01) beside white; a dark checker floor (0.02 / 0.05); a visible bulb and a ceiling light; "
+    "the camera drifts",
+    cam([{'t': 0, 'origin': [-0.3, 1.2, 2.6], 'target': [0.0, 0.7, -1.5]},
+         {'t': 1, 'origin': [0.1, 1.25, 2.5], 'target': [0.15, 0.7, -1.5]}], fov=62),
+    room(floor=checker([0.02, 0.02, 0.02], [0.05, 0.045, 0.04], 10), walls=(0.8, 0.8, 0.78)) + [
+        obj('paint1', 'rectangle', diffuse([0.001, 0.001, 0.001]), [0.3, 0.4, 1], [-1.5, 1.5, -3.99]),
+        obj('paint2', 'rectangle', diffuse([0.004, 0.004, 0.004]), [0.3, 0.4, 1], [-0.7, 1.5, -3.99]),
+        obj('paint3', 'rectangle', diffuse([0.01, 0.009, 0.008]), [0.3, 0.4, 1], [0.1, 1.5, -3.99]),
+        obj('white', 'rectangle', diffuse([0.92, 0.92, 0.9]), [0.3, 0.4, 1], [0.9, 1.5, -3.99]),
+        obj('gold', 'sphere', metal('Au', 0.1), 0.32, [-1.1, 0.32, -1.6]),
+        obj('silver', 'sphere', {'type': 'conductor', 'material': 'Ag'}, 0.28, [-0.35, 0.28, -1.0]),
+        obj('copper', 'cube', metal('Cu', 0.3), [0.22, 0.22, 0.22], [0.45, 0.22, -1.7], rotate=[0, 1, 0, 30]),
+        obj('alu', 'cylinder', metal('Al', 0.2), [0.15, 0.15, 0.7], [1.15, 0.0, -1.2], rotate=[1, 0, 0, -90]),
+        obj('glass', 'sphere', GLASS, 0.22, [0.25, 0.22, -0.5]),
+        sphere_light('bulb', [300, 270, 220], 0.05, [-0.2, 1.7, -2.0]),
+        area('light', [8, 7.6, 7], [0.8, 0.5, 1], [0, 2.98, -1.2]),
+    ], seed=406), (160, 96), 2, 4096), albedo='mitsuba')
+
 
 def main():
     os.makedirs(OUT, exist_ok=True)

@@ -7,7 +7,7 @@
 #
 # Usage: bash tools/render-corpus.sh [DEST]   (default tests/fixtures/corpus)
 # Layout: DEST/{cornell,box}_{4,16,64}spp/frame_0000.exr and DEST/{cornell,box}_ref/,
-# DEST/{glossy,hdr,dim}/frame_*.exr with their ref/. About 25 minutes of a
+# DEST/{glossy,hdr,dim,metals}/frame_*.exr with their ref/. About 25 minutes of a
 # 2-core machine (the references).
 # Needs: bash tools/setup-render.sh once.
 set -euo pipefail
@@ -35,4 +35,6 @@ r "$S/corpus_glossy.json" --out "$DEST/glossy"
 # Mitsuba's own albedo AOV: above 1 (up to ~10) on the rough metals.
 r "$S/corpus_hdr.json" --out "$DEST/hdr" --albedo mitsuba
 r "$S/corpus_dim.json" --out "$DEST/dim"
+# Mitsuba's raw albedo AOV (the scene file says so): metals, glass, black paint.
+r "$S/corpus_metals.json" --out "$DEST/metals"
 du -sh "$DEST"

@@ -15,7 +15,7 @@ fn main() {
     let isa = std::env::var("ISA").ok().and_then(|v| Isa::from_name(&v)).unwrap_or(Isa::detect());
     let net = wskp::net(layers).unwrap();
     let params = net.init(1);
-    let mut tr = Trainer::new(net, params, batch, s, s, 1e-3, 0.0);
+    let mut tr = Trainer::new(net, params, batch, s, s, 1e-3, 0.0).expect("a trainer");
     for wss in tr.workspaces() {
         wskp::crop_buffers(&mut wss[0]);
     }

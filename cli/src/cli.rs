@@ -181,6 +181,10 @@ fn learning_rate(s: &str) -> std::result::Result<f32, String> {
     real(s, 0.0, 1.0).map(|v| v as f32)
 }
 
+fn estimates(s: &str) -> std::result::Result<usize, String> {
+    whole(s, 1, 2).map(|v| v as usize)
+}
+
 fn clip(s: &str) -> std::result::Result<f32, String> {
     real(s, 0.0, 1e9).map(|v| v as f32)
 }
@@ -393,10 +397,10 @@ struct TrainCli {
     /// The weights file to write (safetensors)
     #[arg(short = 'o', long = "output", value_name = "WEIGHTS")]
     out: PathBuf,
-    /// Stop after N steps
+    /// Train N steps in all (the learning-rate schedule's length; a resumed run counts the steps before it)
     #[arg(long, value_name = "N", value_parser = steps)]
     steps: Option<u64>,
-    /// Stop after M minutes
+    /// Stop after M minutes of this run (a checkpoint is written; --resume continues)
     #[arg(long, value_name = "M", value_parser = minutes)]
     minutes: Option<f64>,
     /// Validation sequences (mean PSNR printed every --val-every steps)
@@ -421,9 +425,17 @@ struct TrainCli {
     /// Adam's learning rate
     #[arg(long, value_name = "F", default_value = "1e-3", value_parser = learning_rate)]
     lr: f32,
-    /// The loss
-    #[arg(long, value_enum, default_value_t = Loss::Smape)]
+    /// The loss (relmse-n2n: relMSE normalised by the output with its gradient stopped, for noisy
+    /// targets such as 128-spp renders)
+    #[arg(long, value_enum, default_value_t = Loss::RelMseN2n)]
     loss: Loss,
+    /// The learning rate's schedule over --steps (cosine: warm-up, then a cosine down to lr/100)
+    #[arg(long, value_enum, default_value_t = mcdenoise::train::Schedule::Cosine)]
+    lr_schedule: mcdenoise::train::Schedule,
+    /// Independent estimates of a frame used as inputs of its target: 1 (R,G,B) or 2 (also B.* where
+    /// the frames have it)
+    #[arg(long, value_name = "N", default_value = "2", value_parser = estimates)]
+    estimates: usize,
     /// Gradient norm clip (0: off)
     #[arg(long, value_name = "F", default_value = "0", value_parser = clip)]
     clip: f32,
@@ -571,6 +583,8 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
             a.log = t.log;
             a.variant = t.variant;
             a.sizes = t.sizes;
+            a.estimates = t.estimates;
+            a.schedule = t.lr_schedule;
             Command::Train(a)
         }
         Some(Sub::Score(s)) => Command::Score { reference: s.reference, output: s.output, json: s.json },

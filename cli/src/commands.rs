@@ -318,6 +318,7 @@ pub fn demo(settings: &Settings) -> Result<()> {
     let last = files.len() - 1;
     let (w, h) = (first.info().width, first.info().height);
     let mut sheet: Vec<(String, Vec<f32>)> = Vec::new();
+    let mut failed = Vec::new();
     // WSKP runs twice, with each bundled ImportanceNet.
     let runs = MethodKind::ALL.into_iter().flat_map(|m| match m {
         MethodKind::Wskp => vec![(m, 3, "wskp-3"), (m, 6, "wskp-6")],
@@ -349,7 +350,8 @@ pub fn demo(settings: &Settings) -> Result<()> {
         let rep = match rep {
             Ok(r) => r,
             Err(e) => {
-                println!("{name:<14} skipped: {e}");
+                println!("{name:<14} failed: {e}");
+                failed.push(name.to_string());
                 continue;
             }
         };
@@ -377,5 +379,8 @@ pub fn demo(settings: &Settings) -> Result<()> {
     let path = out_root.join("contact-sheet.png");
     output::write_png_preview(&path, sw, sh, &rgb)?;
     println!("contact sheet of frame {last} (input, each method, reference): {}", path.display());
+    if !failed.is_empty() {
+        return Err(HostError::bad(&dir, format!("the demo's {} failed (above)", failed.join(", "))));
+    }
     Ok(())
 }

@@ -61,7 +61,7 @@ fn network_gradient_matches_finite_differences() {
     let g = head_grads(&net, w, h);
     let pool = Pool::new(2).unwrap();
     for isa in isas_under_test() {
-        let mut tr = Trainer::new(net.clone(), params.clone(), 1, w, h, 1e-3, 0.0);
+        let mut tr = Trainer::new(net.clone(), params.clone(), 1, w, h, 1e-3, 0.0).unwrap();
         let fill = |_: usize, wss: &mut [Workspace]| {
             wss[0].input_mut().copy_from_slice(&x);
             Ok(())
@@ -79,7 +79,7 @@ fn network_gradient_matches_finite_differences() {
         let grad = tr.grad().to_vec();
         // The loss in f64 from the f32 forward pass, for perturbed parameters.
         let loss_at = |p: &[f32]| -> f64 {
-            let mut t2 = Trainer::new(net.clone(), p.to_vec(), 1, w, h, 1e-3, 0.0);
+            let mut t2 = Trainer::new(net.clone(), p.to_vec(), 1, w, h, 1e-3, 0.0).unwrap();
             t2.step(&pool, isa, &fill, &head, false).unwrap().loss as f64
         };
         let scale = grad.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
@@ -108,7 +108,7 @@ fn training_is_deterministic_and_thread_count_independent() {
     let (w, h) = (16, 12);
     let run = |threads: usize| {
         let pool = Pool::new(threads).unwrap();
-        let mut tr = Trainer::new(net.clone(), net.init(11), 4, w, h, 1e-2, 1.0);
+        let mut tr = Trainer::new(net.clone(), net.init(11), 4, w, h, 1e-2, 1.0).unwrap();
         let fill = |i: usize, wss: &mut [Workspace]| {
             wss[0].input_mut().copy_from_slice(&Img::random(3, w, h, 0.0, 1.0, i as u64).data);
             Ok(())
@@ -160,7 +160,8 @@ fn afn_gradient_matches_finite_differences() {
             1,
             1e-3,
             0.0,
-        );
+        )
+        .unwrap();
         for wss in tr.workspaces() {
             afn::crop_buffers(wss);
         }
@@ -219,7 +220,7 @@ fn wskp_gradient_matches_finite_differences_for_subsets_of_sizes() {
         assert_eq!(sizes.outputs(), if sizes.count() == 1 { 1 } else { 4 });
         let params = net.init(5);
         let make = |p: &[f32]| {
-            let mut tr = Trainer::new(net.clone(), p.to_vec(), 1, s, s, 1e-3, 0.0);
+            let mut tr = Trainer::new(net.clone(), p.to_vec(), 1, s, s, 1e-3, 0.0).unwrap();
             for wss in tr.workspaces() {
                 wskp::crop_buffers(&mut wss[0]);
             }

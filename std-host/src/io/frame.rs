@@ -171,6 +171,14 @@ impl Frame {
         }
     }
 
+    /// Swaps the two independent estimates `R,G,B` and `B.R,B.G,B.B`
+    /// (no copy; nothing happens without `B.*`).
+    pub fn swap_estimates(&mut self) {
+        if self.has(Buffer::ColorB) {
+            self.planes.swap(Buffer::Color.index(), Buffer::ColorB.index());
+        }
+    }
+
     /// The buffer's planes, if the file had them.
     pub fn get(&self, b: Buffer) -> Option<&[f32]> {
         self.planes[b.index()].as_deref()

@@ -21,25 +21,11 @@ mod atrous;
 mod basic;
 pub mod bundled;
 pub mod cross;
+pub mod features;
 pub mod wskp;
 
 pub use atrous::Atrous;
 
-/// Pixels whose albedo is below this in every channel are taken for
-/// emitters seen directly (or black surfaces). Demodulating them by
-/// `albedo + eps` would give their radiance over the epsilon (100 to 1000
-/// times any neighbour's irradiance), which bleeds light through the
-/// filters and, in fixed point, sets the format of the whole image; the
-/// à-trous methods, and the learned ones in fixed point, divide them by 1
-/// instead (and remodulate by 1).
-pub const EMITTER_ALBEDO: f32 = 1e-3;
-
-/// Whether pixel `i` of the 3-plane albedo `a` (`n` pixels a plane) is an
-/// emitter ([`EMITTER_ALBEDO`]).
-#[inline]
-pub fn is_emitter(a: &[f32], n: usize, i: usize) -> bool {
-    a[i] < EMITTER_ALBEDO && a[n + i] < EMITTER_ALBEDO && a[2 * n + i] < EMITTER_ALBEDO
-}
 pub use basic::{scene_scale, Passthrough, TemporalAccumulation, POSITION_TOLERANCE};
 
 /// The methods, by command-line name.
@@ -226,8 +212,50 @@ pub trait Denoiser {
     fn denoise(&mut self, frame: &Frame, ctx: &mut Ctx, t: &mut Timings) -> Result<Vec<f32>>;
 }
 
-/// Builds the denoiser for `kind` from the sequence's first frame.
+/// Builds the denoiser for `kind` from the sequence's first frame. Every
+/// later frame must have the first one's size (a denoiser keeps history and
+/// buffers of that size; another size is an error naming both, never a
+/// panic); an empty frame is refused.
 pub fn create(kind: MethodKind, settings: &Settings, first: &Frame) -> Result<Box<dyn Denoiser>> {
+    if first.width == 0 || first.height == 0 {
+        return Err(HostError::bad(&first.path, format!("an empty {}x{} frame", first.width, first.height)));
+    }
+    let inner = create_unchecked(kind, settings, first)?;
+    Ok(Box::new(OneSize { inner, size: (first.width, first.height) }))
+}
+
+/// A denoiser that refuses frames of another size than its first.
+struct OneSize {
+    inner: Box<dyn Denoiser>,
+    size: (usize, usize),
+}
+
+impl Denoiser for OneSize {
+    fn name(&self) -> &'static str {
+        self.inner.name()
+    }
+    fn plan(&self) -> &Plan {
+        self.inner.plan()
+    }
+    fn denoise(&mut self, frame: &Frame, ctx: &mut Ctx, t: &mut Timings) -> Result<Vec<f32>> {
+        if (frame.width, frame.height) != self.size {
+            return Err(HostError::bad(
+                &frame.path,
+                format!(
+                    "a {}x{} frame, but this {} denoiser's sequence is {}x{} (make a new denoiser for another size)",
+                    frame.width,
+                    frame.height,
+                    self.inner.name(),
+                    self.size.0,
+                    self.size.1
+                ),
+            ));
+        }
+        self.inner.denoise(frame, ctx, t)
+    }
+}
+
+fn create_unchecked(kind: MethodKind, settings: &Settings, first: &Frame) -> Result<Box<dyn Denoiser>> {
     if kind == MethodKind::Cross {
         // Trained online in f32 whatever the storage precision asked for.
         let mut c = crate::methods::cross::Cross::new(

@@ -33,6 +33,8 @@ pub struct Inference<P: HostPrecision> {
     /// Buffers by tensor (None when not live).
     bufs: Vec<Option<Planes<P::Store>>>,
     free: Vec<Planes<P::Store>>,
+    /// The frame size of the last run.
+    size: (usize, usize),
     last_use: Vec<usize>,
 }
 
@@ -175,6 +177,7 @@ impl<P: HostPrecision> Inference<P> {
             fracs,
             bufs: (0..nt).map(|_| None).collect(),
             free: Vec::new(),
+            size: (0, 0),
             last_use,
         })
     }
@@ -182,6 +185,12 @@ impl<P: HostPrecision> Inference<P> {
     /// Output `k` of the last run (in the network's output order).
     pub fn output(&self, k: usize) -> &Planes<P::Store> {
         self.bufs[self.net.outputs[k]].as_ref().expect("outputs stay live after a run")
+    }
+
+    /// Bytes of the buffers held now (live tensors and the free list).
+    pub fn held_bytes(&self) -> u64 {
+        let size = std::mem::size_of::<P::Store>() as u64;
+        self.bufs.iter().flatten().chain(&self.free).map(|p| p.data.len() as u64 * size).sum()
     }
 
     /// The format the input must be stored in (fixed point).
@@ -221,6 +230,12 @@ impl<P: HostPrecision> Inference<P> {
             if let Some(p) = b.take() {
                 self.free.push(p);
             }
+        }
+        // Buffers are reused by length; a new frame size makes the old ones
+        // useless, so they are dropped: memory stays that of one size.
+        if self.size != (w, h) {
+            self.free.clear();
+            self.size = (w, h);
         }
         let isa = ctx.isa;
         let nodes = self.net.nodes.clone();

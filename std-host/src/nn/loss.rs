@@ -1,6 +1,17 @@
 //! Losses on linear HDR values, each with its gradient, averaged over the
-//! elements: SMAPE `|x - r| / (|x| + |r| + eps)` (WSKP's, eps 0.01), relMSE
-//! `(x - r)^2 / (r^2 + eps)` (eps 0.01) and L1 `|x - r|`.
+//! elements, on the values times the frame's exposure `e` (so that `eps`
+//! is relative to the frame's level, and a frame scaled by `k` trains as
+//! the frame itself): SMAPE `|x - r| / (|x| + |r| + eps)` (WSKP's, eps
+//! 0.01), relMSE `(x - r)^2 / (r^2 + eps)` (eps 0.01), L1 `|x - r|`, and
+//! the noisy-target relMSE `(x - r)^2 / (sg(x)^2 + eps)`.
+//!
+//! The last is the default of `mcdenoise train`: it is the loss for
+//! targets rendered at a modest sample count (Noise2Noise, Lehtinen et al.
+//! 2018). An L2-type loss whose normaliser does not depend on the target is
+//! minimised by the target's mean, so an unbiased noisy target trains to
+//! the same network as a converged one; relMSE and SMAPE normalise by the
+//! target and are biased by its noise. The normaliser is the output with
+//! its gradient stopped (`sg`), as in that paper's HDR loss.
 
 /// Which loss.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -12,6 +23,10 @@ pub enum Loss {
     RelMse,
     /// Mean absolute error.
     L1,
+    /// relMSE normalised by the output with its gradient stopped, eps 0.01:
+    /// for noisy targets.
+    #[value(name = "relmse-n2n")]
+    RelMseN2n,
 }
 
 impl Loss {
@@ -21,6 +36,7 @@ impl Loss {
             "smape" => Some(Loss::Smape),
             "relmse" => Some(Loss::RelMse),
             "l1" => Some(Loss::L1),
+            "relmse-n2n" => Some(Loss::RelMseN2n),
             _ => None,
         }
     }
@@ -31,16 +47,20 @@ impl Loss {
             Loss::Smape => "smape",
             Loss::RelMse => "relmse",
             Loss::L1 => "l1",
+            Loss::RelMseN2n => "relmse-n2n",
         }
     }
 
-    /// The mean loss of `x` against `r`, and its gradient (of the mean) into
-    /// `grad`, scaled by `scale` (e.g. 1 / batch).
-    pub fn eval(self, x: &[f32], r: &[f32], grad: &mut [f32], scale: f32) -> f32 {
+    /// The mean loss of `x` against `r` times `exposure`, and its gradient
+    /// (of the mean, with respect to `x`) into `grad`, scaled by `scale`
+    /// (e.g. 1 / batch).
+    pub fn eval(self, x: &[f32], r: &[f32], grad: &mut [f32], scale: f32, exposure: f32) -> f32 {
         let n = x.len().max(1) as f32;
-        let k = scale / n;
+        let e = if exposure > 0.0 && exposure.is_finite() { exposure } else { 1.0 };
+        let k = scale / n * e;
         let mut total = 0.0f64;
         for ((g, &a), &b) in grad.iter_mut().zip(x).zip(r) {
+            let (a, b) = (a * e, b * e);
             let d = a - b;
             let (l, dl) = match self {
                 Loss::Smape => {
@@ -65,6 +85,10 @@ impl Loss {
                     let den = b * b + 0.01;
                     (d * d / den, 2.0 * d / den)
                 }
+                Loss::RelMseN2n => {
+                    let den = a * a + 0.01;
+                    (d * d / den, 2.0 * d / den)
+                }
                 Loss::L1 => (
                     d.abs(),
                     if d > 0.0 {
@@ -87,13 +111,31 @@ impl Loss {
 mod tests {
     use super::*;
 
+    /// The exposure scales values, not the loss's shape: the loss of `x`
+    /// at exposure `e` is the loss of `e x` at 1, its gradient `e` times.
+    #[test]
+    fn exposure_scales_the_values() {
+        let x = [0.3f32, 2.0, 0.011];
+        let r = [0.25f32, 2.5, 0.0];
+        for loss in [Loss::Smape, Loss::RelMse, Loss::L1, Loss::RelMseN2n] {
+            let (mut g1, mut g2) = ([0.0f32; 3], [0.0f32; 3]);
+            let l1 = loss.eval(&x, &r, &mut g1, 1.0, 4.0);
+            let (xs, rs) = (x.map(|v| 4.0 * v), r.map(|v| 4.0 * v));
+            let l2 = loss.eval(&xs, &rs, &mut g2, 1.0, 1.0);
+            assert!((l1 - l2).abs() <= 1e-6 * l2.abs().max(1.0), "{loss:?}");
+            for (a, b) in g1.iter().zip(&g2) {
+                assert!((a - 4.0 * b).abs() <= 1e-5 * b.abs().max(1.0), "{loss:?}: {a} {b}");
+            }
+        }
+    }
+
     #[test]
     fn gradients_match_finite_differences() {
         let x = [0.3f32, -0.2, 2.0, 0.011, 5.0, 0.0];
         let r = [0.25f32, 0.1, 2.5, 0.0, 4.0, 0.7];
-        for loss in [Loss::Smape, Loss::RelMse, Loss::L1] {
+        for loss in [Loss::Smape, Loss::RelMse, Loss::L1, Loss::RelMseN2n] {
             let mut g = [0.0f32; 6];
-            loss.eval(&x, &r, &mut g, 1.0);
+            loss.eval(&x, &r, &mut g, 1.0, 1.0);
             for i in 0..6 {
                 let h = 1e-3f64;
                 let f = |d: f64| {
@@ -101,7 +143,23 @@ mod tests {
                     v[i] += d;
                     let xs: Vec<f32> = v.iter().map(|&a| a as f32).collect();
                     let mut t = [0.0f32; 6];
-                    loss.eval(&xs, &r, &mut t, 1.0) as f64
+                    match loss {
+                        // The normaliser's gradient is stopped: hold it at x.
+                        Loss::RelMseN2n => {
+                            let a = xs[i] as f64;
+                            let b = r[i] as f64;
+                            let den = (x[i] as f64).powi(2) + 0.01;
+                            let rest: f64 = (0..6)
+                                .filter(|&j| j != i)
+                                .map(|j| {
+                                    let dj = (x[j] - r[j]) as f64;
+                                    dj * dj / ((x[j] as f64).powi(2) + 0.01)
+                                })
+                                .sum();
+                            ((a - b) * (a - b) / den + rest) / 6.0
+                        }
+                        _ => loss.eval(&xs, &r, &mut t, 1.0, 1.0) as f64,
+                    }
                 };
                 let fd = (f(h) - f(-h)) / (2.0 * h);
                 // Central differences of an f32 loss with h = 1e-3: accurate to ~1e-3 relative where the loss bends.

@@ -844,17 +844,30 @@ pub struct Trainer {
 
 impl Trainer {
     /// A trainer of one network for `batch` crops of `w x h`.
-    pub fn new(net: Net, params: Vec<f32>, batch: usize, w: usize, h: usize, lr: f32, clip: f32) -> Trainer {
+    pub fn new(net: Net, params: Vec<f32>, batch: usize, w: usize, h: usize, lr: f32, clip: f32) -> Result<Trainer> {
         Trainer::with_nets(vec![(net, params, (w, h))], batch, lr, clip)
     }
 
     /// A trainer of several networks, each with its parameters and its
-    /// workspace size, for `batch` crops.
-    pub fn with_nets(nets: Vec<(Net, Vec<f32>, (usize, usize))>, batch: usize, lr: f32, clip: f32) -> Trainer {
+    /// workspace size, for `batch` crops; an error when a network's
+    /// parameters are not its count, a crop is empty, or the batch is 0.
+    pub fn with_nets(nets: Vec<(Net, Vec<f32>, (usize, usize))>, batch: usize, lr: f32, clip: f32) -> Result<Trainer> {
         let mut offsets = vec![0];
         let mut params = Vec::new();
-        for (n, p, _) in &nets {
-            assert_eq!(n.params, p.len(), "parameters of their network");
+        if batch == 0 || nets.is_empty() {
+            return Err(HostError::Usage("trainer: a batch of at least one crop and one network".into()));
+        }
+        for (n, p, (w, h)) in &nets {
+            if n.params != p.len() {
+                return Err(HostError::Usage(format!(
+                    "trainer: {} parameters given for a network of {}",
+                    p.len(),
+                    n.params
+                )));
+            }
+            if *w == 0 || *h == 0 {
+                return Err(HostError::Usage(format!("trainer: an empty {w}x{h} crop")));
+            }
             params.extend_from_slice(p);
             offsets.push(params.len());
         }
@@ -866,7 +879,7 @@ impl Trainer {
             merged[k].update(n, &params[offsets[k]..offsets[k + 1]]);
         }
         let total = params.len();
-        Trainer {
+        Ok(Trainer {
             gm: nets.iter().map(|n| n.convs.iter().map(|c| vec![0.0; c.merged_len()]).collect()).collect(),
             gb: nets.iter().map(|n| n.convs.iter().map(|c| vec![0.0; c.spec.cout]).collect()).collect(),
             adam: adam::Adam::new(total, lr),
@@ -877,7 +890,7 @@ impl Trainer {
             params,
             offsets,
             nets,
-        }
+        })
     }
 
     /// The first network.
@@ -896,12 +909,19 @@ impl Trainer {
     }
 
     /// Sets the parameters (all networks', flat) and the merged weights.
-    pub fn set_params(&mut self, params: Vec<f32>) {
-        assert_eq!(params.len(), self.params.len(), "every network's parameters");
+    pub fn set_params(&mut self, params: Vec<f32>) -> Result<()> {
+        if params.len() != self.params.len() {
+            return Err(HostError::Usage(format!(
+                "trainer: {} parameters given for networks of {}",
+                params.len(),
+                self.params.len()
+            )));
+        }
         self.params = params;
         for (k, n) in self.nets.iter().enumerate() {
             self.merged[k].update(n, &self.params[self.offsets[k]..self.offsets[k + 1]]);
         }
+        Ok(())
     }
 
     /// The crops' workspaces (per crop, one per network).

@@ -11,7 +11,9 @@
 //!   bias, `layers.{i}.bias` `[cout]`.
 //!
 //! Metadata: `format` (`mcdenoise-<model>`), `version` (`1`), `form`
-//! (`branches` or `merged`) and the model's own keys (e.g. `layers`). A
+//! (`branches` or `merged`), `transform` (the name and version of the
+//! input transform the network was trained on, which loading checks) and
+//! the model's own keys (e.g. `layers`). A
 //! checkpoint adds `adam.m`, `adam.v` (one value per parameter, in the
 //! order of [`super::Net`]'s flat vector) and the keys `step`, `adam_t`,
 //! `rng`.
@@ -186,6 +188,29 @@ impl File {
             Some(v) if v == want => Ok(()),
             Some(v) => Err(HostError::bad(&self.path, format!("metadata {key} is '{v}', expected '{want}'"))),
             None => Err(HostError::bad(&self.path, format!("metadata {key} missing (expected '{want}')"))),
+        }
+    }
+
+    /// Checks the file was trained on inputs made by the transform `want`
+    /// (metadata `transform`, a name with its version): weights trained on
+    /// other inputs would run and give wrong pictures, so they are refused.
+    pub fn expect_transform(&self, want: &str) -> Result<()> {
+        match self.meta("transform") {
+            Some(v) if v == want => Ok(()),
+            Some(v) => Err(HostError::bad(
+                &self.path,
+                format!(
+                    "trained on inputs made by the transform '{v}', but this build makes them with '{want}'; \
+                     retrain the weights with this build's 'mcdenoise train'"
+                ),
+            )),
+            None => Err(HostError::bad(
+                &self.path,
+                format!(
+                    "records no input transform (made by an older build); this build's inputs are '{want}': \
+                     retrain the weights with this build's 'mcdenoise train'"
+                ),
+            )),
         }
     }
 

@@ -78,6 +78,42 @@ pub struct TrainArgs {
     pub variant: afn::Variant,
     /// WSKP: the window sizes.
     pub sizes: wskp::Sizes,
+    /// Independent estimates of a frame used as inputs of its target: 1
+    /// (`R,G,B`) or 2 (`R,G,B` and, where the frame has it, `B.*`).
+    pub estimates: usize,
+    /// The learning rate's schedule.
+    pub schedule: Schedule,
+}
+
+/// How the learning rate moves over a run of `--steps` steps.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Schedule {
+    /// `--lr` throughout.
+    Constant,
+    /// A linear warm-up over the first `min(1000, steps / 20)` steps, then a
+    /// cosine from `--lr` down to `--lr / 100` at step `--steps`.
+    Cosine,
+}
+
+impl Schedule {
+    /// The learning rate at `step` (from 0) of `total` steps.
+    pub fn lr(self, base: f32, step: u64, total: Option<u64>) -> f32 {
+        match (self, total) {
+            (Schedule::Constant, _) | (_, None) => base,
+            (Schedule::Cosine, Some(total)) => {
+                let total = total.max(1) as f64;
+                let warm = (total / 20.0).min(1000.0).max(1.0);
+                let s = step as f64;
+                let f = if s < warm {
+                    (s + 1.0) / warm
+                } else {
+                    let t = ((s - warm) / (total - warm).max(1.0)).min(1.0);
+                    0.01 + 0.99 * 0.5 * (1.0 + (std::f64::consts::PI * t).cos())
+                };
+                (base as f64 * f) as f32
+            }
+        }
+    }
 }
 
 impl Default for TrainArgs {
@@ -94,7 +130,7 @@ impl Default for TrainArgs {
             crop: 128,
             lr: 1e-3,
             clip: 0.0,
-            loss: Loss::Smape,
+            loss: Loss::RelMseN2n,
             seed: 1,
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
             isa: Isa::detect(),
@@ -104,6 +140,8 @@ impl Default for TrainArgs {
             log: None,
             variant: afn::Variant::Fusion,
             sizes: wskp::Sizes::ALL,
+            estimates: 2,
+            schedule: Schedule::Cosine,
         }
     }
 }
@@ -170,11 +208,12 @@ pub fn accumulate(seq: &Sequence, threads: usize, isa: Isa) -> Result<Vec<Vec<f3
 }
 
 /// One frame's training tensors: `planes` of `w x h`, the network's input
-/// first (`cin` planes), then the model's own.
+/// first (`cin` planes), then the model's own; held in f16 (thousands of
+/// frames fit in memory), read back to f32 crop by crop.
 struct Sample {
     w: usize,
     h: usize,
-    data: Vec<f32>,
+    data: Vec<half::f16>,
 }
 
 /// Where a crop comes from: frame, corner, and which of the 8 symmetries.
@@ -203,7 +242,7 @@ fn crop(sample: &Sample, at: CropAt, s: usize, p0: usize, p1: usize, dst: &mut [
                 if at.t & 2 != 0 {
                     v = s - 1 - v;
                 }
-                out[y * s + x] = src[(at.y0 + v) * sample.w + at.x0 + u];
+                out[y * s + x] = src[(at.y0 + v) * sample.w + at.x0 + u].to_f32();
             }
         }
     }
@@ -280,24 +319,28 @@ impl Model {
     /// Metadata every file of this model carries.
     fn meta(self) -> Vec<(&'static str, String)> {
         match self {
-            Model::Wskp(l, s) => vec![("layers", l.to_string()), ("sizes", s.name())],
-            Model::Afn(v) => vec![("variant", v.name().to_string())],
+            Model::Wskp(l, s) => vec![
+                ("layers", l.to_string()),
+                ("sizes", s.name()),
+                ("transform", crate::methods::features::TRANSFORM.to_string()),
+            ],
+            Model::Afn(v) => {
+                vec![("variant", v.name().to_string()), ("transform", crate::methods::features::TRANSFORM.to_string())]
+            }
         }
     }
     /// Planes of a sample: the network input, then the model's own.
     fn planes(self) -> (usize, usize) {
         match self {
-            Model::Wskp(..) => (wskp::CIN, 9),
+            Model::Wskp(..) => (wskp::CIN, wskp::DATA_PLANES),
             Model::Afn(_) => (afn::CIN, afn::buf::DATA_PLANES),
         }
     }
-    /// The sequences' samples.
-    fn samples(self, seqs: &[Sequence], threads: usize, isa: Isa) -> Result<Vec<Sample>> {
-        let pool = crate::runtime::par::Pool::new(threads).map_err(HostError::Usage)?;
+    /// A sequence's samples, appended to `out` (each frame's data in f16).
+    fn samples(self, s: &Sequence, pool: &crate::runtime::par::Pool, isa: Isa, out: &mut Vec<Sample>) -> Result<()> {
         let (cin, own) = self.planes();
-        let mut out = Vec::new();
-        for s in seqs {
-            let ta = accumulate(s, threads, isa)?;
+        {
+            let ta = accumulate(s, pool.threads(), isa)?;
             for ((f, t), r) in s.frames.iter().zip(&ta).zip(&s.refs) {
                 let n = f.width * f.height;
                 let mut data = vec![0.0f32; (cin + own) * n];
@@ -306,25 +349,30 @@ impl Model {
                     Model::Wskp(..) => {
                         wskp::check_inputs(f)?;
                         let (c, rest) = rest.split_at_mut(3 * n);
-                        let (alb, rf) = rest.split_at_mut(3 * n);
-                        wskp::inputs(&pool, isa, f, t, x, c, alb, false)?;
+                        let (alb, rest) = rest.split_at_mut(3 * n);
+                        let (rf, expo) = rest.split_at_mut(3 * n);
+                        let e = wskp::inputs(&pool, f, t, x, c, alb)?;
                         rf.copy_from_slice(r);
+                        expo.fill(e);
                     }
                     Model::Afn(variant) => {
                         afn::check_inputs(f)?;
                         let (c1, rest) = rest.split_at_mut(3 * n);
                         let (ct, rest) = rest.split_at_mut(3 * n);
                         let (alb, rest) = rest.split_at_mut(3 * n);
-                        let (rf, feats) = rest.split_at_mut(3 * n);
-                        afn::inputs(&pool, isa, variant, f, t, x, c1, ct, alb, false)?;
+                        let (rf, rest) = rest.split_at_mut(3 * n);
+                        let (feats, expo) = rest.split_at_mut(7 * n);
+                        let e = afn::inputs(&pool, variant, f, t, x, c1, ct, alb)?;
                         rf.copy_from_slice(r);
                         feats.copy_from_slice(&x[6 * n..]);
+                        expo.fill(e);
                     }
                 }
+                let data = data.iter().map(|&v| half::f16::from_f32(v)).collect();
                 out.push(Sample { w: f.width, h: f.height, data });
             }
         }
-        Ok(out)
+        Ok(())
     }
     /// The denoiser for validation, with the flat parameters of every network.
     fn denoiser(self, f: &Frame, nets: &[Net], params: &[f32]) -> Result<Box<dyn Denoiser>> {
@@ -388,8 +436,25 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     let dirs = sequence_dirs(&a.data)?;
     let nparams: usize = nets.iter().map(|n| n.params).sum();
     eprintln!("train {}: {} parameters; loading {}", model.name(), nparams, a.data.display());
-    let seqs: Vec<Sequence> = dirs.iter().map(|d| load_sequence(d)).collect::<Result<_>>()?;
-    let samples = model.samples(&seqs, a.threads, a.isa)?;
+    // One sequence at a time: its frames are dropped once its samples
+    // (each estimate's accumulation and features) are made.
+    let pool = crate::runtime::par::Pool::new(a.threads).map_err(HostError::Usage)?;
+    let mut samples = Vec::new();
+    let mut nseqs = 0;
+    for (k, d) in dirs.iter().enumerate() {
+        let mut seq = load_sequence(d)?;
+        model.samples(&seq, &pool, a.isa, &mut samples)?;
+        if a.estimates > 1 && seq.frames.iter().all(|f| f.has(Buffer::ColorB)) {
+            for f in &mut seq.frames {
+                f.swap_estimates();
+            }
+            model.samples(&seq, &pool, a.isa, &mut samples)?;
+        }
+        nseqs += 1;
+        if (k + 1) % 50 == 0 {
+            eprintln!("  {} of {} sequences loaded ({} samples)", k + 1, dirs.len(), samples.len());
+        }
+    }
     let s = a.crop;
     if let Some(small) = samples.iter().find(|x| x.w < s || x.h < s) {
         return Err(HostError::Usage(format!("--crop {s}: a frame is only {}x{}", small.w, small.h)));
@@ -402,8 +467,8 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         None => Vec::new(),
     };
     eprintln!(
-        "{} sequences, {} frames loaded and accumulated in {:.1} s; validation: {} frames (input {:.2} dB)",
-        seqs.len(),
+        "{} sequences, {} samples (frames x estimates) loaded and accumulated in {:.1} s; validation: {} frames (input {:.2} dB)",
+        nseqs,
         samples.len(),
         t0.elapsed().as_secs_f64(),
         val.iter().map(|v| v.frames.len()).sum::<usize>(),
@@ -413,6 +478,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         nets.iter().enumerate().flat_map(|(k, n)| n.init(a.seed.wrapping_add(k as u64 * 1000))).collect();
     let (mut step, mut rng) = (0u64, Rng::new(a.seed.wrapping_add(1)));
     let mut adam_state = None;
+    let mut seconds_before = 0.0f64;
     if let Some(r) = &a.resume {
         let f = File::read(r)?;
         params = model.load(&f, &nets)?;
@@ -422,6 +488,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
                 .ok_or_else(|| HostError::bad(r, format!("checkpoint metadata {k} missing")))
         };
         step = num("step")?;
+        seconds_before = f.meta("seconds").and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
         rng = Rng::from_state(num("rng")?);
         adam_state = Some((f.tensor("adam.m", &[nparams])?, f.tensor("adam.v", &[nparams])?, num("adam_t")?));
         eprintln!("resumed from {} at step {step}", r.display());
@@ -435,7 +502,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             (n.clone(), p, (s, s))
         })
         .collect();
-    let mut tr = Trainer::with_nets(spec, a.batch, a.lr, a.clip);
+    let mut tr = Trainer::with_nets(spec, a.batch, a.lr, a.clip)?;
     if let Some((m, v, t)) = adam_state {
         (tr.adam.m, tr.adam.v, tr.adam.t) = (m, v, t);
     }
@@ -447,6 +514,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     }
     let pool = crate::runtime::par::Pool::new(a.threads).map_err(HostError::Usage)?;
     let ckpt = checkpoint_path(&a.out);
+    let first_step = step;
     let start = Instant::now();
     let mut last_ckpt = Instant::now();
     let deadline = a.minutes.map(|m| Duration::from_secs_f64(m * 60.0));
@@ -457,7 +525,23 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         );
         b
     });
-    let mut log = String::from("step,seconds,loss,val_psnr\n");
+    // The log is appended to at each checkpoint (rows up to the checkpoint's
+    // step), so a run stopped and resumed leaves one row per step.
+    let mut log = String::new();
+    if let Some(l) = &a.log {
+        if a.resume.is_none() || !l.exists() {
+            std::fs::write(l, "step,seconds,loss,lr,val_psnr\n").map_err(|e| HostError::write(l, e))?;
+        }
+    }
+    let flush_log = |log: &mut String| -> Result<()> {
+        if let Some(l) = &a.log {
+            use std::io::Write as _;
+            let mut f = std::fs::OpenOptions::new().append(true).open(l).map_err(|e| HostError::write(l, e))?;
+            f.write_all(log.as_bytes()).map_err(|e| HostError::write(l, e))?;
+        }
+        log.clear();
+        Ok(())
+    };
     let mut ema: Option<f32> = None;
     let (isa, loss, scale) = (a.isa, a.loss, 1.0 / a.batch as f32);
     let validate_now = |tr: &Trainer| -> Result<f64> {
@@ -471,6 +555,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         if done_steps || done_time {
             break;
         }
+        tr.adam.lr = a.schedule.lr(a.lr, step, a.steps);
         let picks: Vec<CropAt> = (0..a.batch).map(|_| draw(&mut rng, &samples, s)).collect();
         let fill = |i: usize, wss: &mut [Workspace]| -> Result<()> {
             let ws = &mut wss[0];
@@ -487,7 +572,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         let st = tr.step(&pool, a.isa, &fill, &head, true)?;
         step += 1;
         ema = Some(ema.map_or(st.loss, |e| 0.98 * e + 0.02 * st.loss));
-        let secs = start.elapsed().as_secs_f64();
+        let secs = seconds_before + start.elapsed().as_secs_f64();
         let mut vpsnr = String::new();
         if !val.is_empty() && a.val_every > 0 && step % a.val_every == 0 {
             let p = validate_now(&tr)?;
@@ -498,8 +583,11 @@ pub fn run(a: &TrainArgs) -> Result<()> {
                 None => eprintln!("{line}"),
             }
         }
-        let _ = std::fmt::Write::write_fmt(&mut log, format_args!("{step},{secs:.2},{:.6},{vpsnr}\n", st.loss));
-        let rate = step as f64 / secs.max(1e-9);
+        let _ = std::fmt::Write::write_fmt(
+            &mut log,
+            format_args!("{step},{secs:.2},{:.6},{:.3e},{vpsnr}\n", st.loss, tr.adam.lr),
+        );
+        let rate = (step - first_step) as f64 / start.elapsed().as_secs_f64().max(1e-9);
         match &bar {
             Some(b) => {
                 b.set_position(step);
@@ -513,32 +601,31 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             None => {}
         }
         if last_ckpt.elapsed().as_secs_f64() >= a.checkpoint_minutes * 60.0 {
-            model.save(&ckpt, &tr, &[], Some((step, &rng)))?;
+            model.save(&ckpt, &tr, &[("seconds", format!("{secs:.1}"))], Some((step, &rng)))?;
+            flush_log(&mut log)?;
             last_ckpt = Instant::now();
         }
     }
     if let Some(b) = &bar {
         b.finish_and_clear();
     }
-    model.save(&ckpt, &tr, &[], Some((step, &rng)))?;
+    let secs = seconds_before + start.elapsed().as_secs_f64();
+    model.save(&ckpt, &tr, &[("seconds", format!("{secs:.1}"))], Some((step, &rng)))?;
     model.save(&a.out, &tr, &[("steps", step.to_string())], None)?;
-    let secs = start.elapsed().as_secs_f64();
     let vp = if val.is_empty() { None } else { Some(validate_now(&tr)?) };
     eprintln!(
-        "trained {step} steps in {secs:.1} s ({:.2} steps/s, {} threads, {}); final loss {:.4}{}; weights: {}",
-        step as f64 / secs.max(1e-9),
+        "trained {step} steps in {secs:.1} s ({:.2} steps/s this run, {} threads, {}); final loss {:.4}{}; weights: {}",
+        (step - first_step) as f64 / start.elapsed().as_secs_f64().max(1e-9),
         a.threads,
         a.isa.name(),
         ema.unwrap_or(0.0),
         vp.map(|p| format!(", validation PSNR {p:.2} dB")).unwrap_or_default(),
         a.out.display()
     );
-    if let Some(l) = &a.log {
-        if let Some(vp) = vp {
-            let _ = std::fmt::Write::write_fmt(&mut log, format_args!("{step},{secs:.2},,{vp:.3}\n"));
-        }
-        std::fs::write(l, log).map_err(|e| HostError::write(l, e))?;
+    if let Some(vp) = vp {
+        let _ = std::fmt::Write::write_fmt(&mut log, format_args!("{step},{secs:.2},,,{vp:.3}\n"));
     }
+    flush_log(&mut log)?;
     Ok(())
 }
 

@@ -9,12 +9,12 @@
 //! No public code exists; the choices here (light by design: about 15 k
 //! multiply-adds per pixel for the kernel predictor, 2.7 k for the
 //! refinement):
-//! - everything is filtered in demodulated irradiance `c = x / (albedo +
-//!   EPS)` and remodulated at the end, as the paper's loss on `o * albedo`
-//!   (in fixed point, emitters by 1, as WSKP's [`crate::methods::wskp::inputs`]);
-//! - network input (13 channels): `clamp(r, 0, 1)^(1/2.2)` of the 1-spp and
-//!   of the TA radiance (3 + 3), albedo (3), `n * 0.5 + 0.5` (3), depth
-//!   normalised over the frame (1);
+//! - everything is filtered in demodulated irradiance `c = x / d` and
+//!   remodulated by `d` at the end, as the paper's loss on `o * albedo`,
+//!   `d` the demodulation factor of [`crate::methods::features`];
+//! - network input (13 channels, [`crate::methods::features`]): the 1-spp
+//!   and the TA radiance through the exposure and the transfer curve
+//!   (3 + 3), albedo (3), normal (3), depth normalised over the frame (1);
 //! - kernel predictor: 3x3 convolutions with ReLU, 13 -> 12 (full), max pool,
 //!   12 -> 24 (half), max pool, 24 -> 32 -> 32 (quarter), nearest upsample,
 //!   concatenation with the half-scale features, 56 -> 32 (half); from there
@@ -23,31 +23,27 @@
 //!   head 16 -> 50 gives `K_TA` (49) and the fusion weight's logit (1);
 //! - kernels are the softmax of their 49 logits per pixel (convex weights,
 //!   robust to HDR), the fusion weight a sigmoid;
-//! - refinement: input `log1p(i)` (3) and the auxiliary buffers (7); 3x3
-//!   convolutions 10 -> 12 -> 12 (ReLU) -> 3; the residual is added in
-//!   `log1p` space, `o = expm1(log1p(i) + R)`, so a bright pixel's
-//!   correction scales with it;
-//! - loss: SMAPE on linear HDR (the paper's, eps 0.01 as WSKP).
+//! - refinement: input `log1p(e i)` (3, `e` the frame's exposure) and the
+//!   auxiliary buffers (7); 3x3 convolutions 10 -> 12 -> 12 (ReLU) -> 3; the
+//!   residual is added in `log1p` space, `o = expm1(log1p(e i) + R) / e`, so
+//!   a bright pixel's correction scales with it and the output with the
+//!   input.
 
 use mcdenoise_core::conv::{self as cconv, Activation, Conv2d};
 use mcdenoise_core::pool::{self, grad as pgrad, Reduce};
 use mcdenoise_core::softmax::{self, grad as sgrad};
-use mcdenoise_core::tonemap::{self, Map};
 use mcdenoise_core::unfold::{self, grad as ugrad};
 use mcdenoise_core::{Isa, View, ViewMut, F32};
 
 use crate::error::{HostError, Result};
 use crate::io::frame::{Buffer, Frame};
-use crate::methods::{Ctx, Denoiser, Plan, TemporalAccumulation, Timings};
+use crate::methods::{features, Ctx, Denoiser, Plan, TemporalAccumulation, Timings};
 use crate::nn::infer::Inference;
 use crate::nn::loss::Loss;
 use crate::nn::weights::File;
 use crate::nn::{Conv, Layer, Net, NetDesc, Nets, Workspace};
 use crate::runtime::par::Pool;
 use crate::runtime::precision::{HostPrecision, Kind, Planes};
-
-/// Albedo epsilon of the (de)modulation.
-pub const EPS: f32 = 0.01;
 
 /// Which images the network filters (the paper's Table 11 ablation).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -119,7 +115,7 @@ pub fn kernel_net() -> Result<Net> {
     })
 }
 
-/// The refinement network (`log1p(i)` and the auxiliary buffers to the
+/// The refinement network (`log1p(e i)` and the auxiliary buffers to the
 /// residual in `log1p` space).
 pub fn refine_net() -> Result<Net> {
     let r = Activation::Relu;
@@ -134,80 +130,41 @@ pub fn check_inputs(f: &Frame) -> Result<()> {
     Ok(())
 }
 
-/// A frame's tensors from its accumulated radiance `t`: the network input
-/// `x` (13 planes), the demodulated 1-spp and TA irradiance `c1`, `ct` (3
-/// each) and the remodulation albedo `alb` (3, `a + EPS`); `emitters` as
-/// for [`crate::methods::wskp::inputs`].
+/// The network input `x` (13 planes), the demodulated 1-spp and TA
+/// irradiance `c1`, `ct` (3 each) and the demodulation factor `d` (3) of a
+/// frame from its accumulated radiance `t`, by the rules of
+/// [`crate::methods::features`]; returns the frame's exposure. A
+/// single-image variant sees its image in both slots.
 #[allow(clippy::too_many_arguments)]
 pub fn inputs(
     pool: &Pool,
-    isa: Isa,
     variant: Variant,
     f: &Frame,
     t: &[f32],
     x: &mut [f32],
     c1: &mut [f32],
     ct: &mut [f32],
-    alb: &mut [f32],
-    emitters: bool,
-) -> Result<()> {
-    let n = f.width * f.height;
+    d: &mut [f32],
+) -> Result<f32> {
+    check_inputs(f)?;
     let r = f.require(Buffer::Color, "afn")?;
-    // A single-image variant sees that image in both slots.
+    let e = features::exposure(r, f.width, f.height);
     let (r, t) = match variant {
         Variant::Fusion => (r, t),
         Variant::TaOnly => (t, t),
         Variant::OneSppOnly => (r, r),
     };
-    let a = f.require(Buffer::Albedo, "afn")?;
-    let nrm = f.require(Buffer::Normal, "afn")?;
-    let d = f.require(Buffer::Depth, "afn")?;
-    let isa = isa.check()?.isa();
-    let (lo, hi) = d.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &v| (l.min(v), h.max(v)));
-    let inv = if hi > lo { 1.0 / (hi - lo) } else { 0.0 };
-    let mut planes: Vec<&mut [f32]> = x.chunks_mut(n).collect();
-    planes.extend(c1.chunks_mut(n));
-    planes.extend(ct.chunks_mut(n));
-    planes.extend(alb.chunks_mut(n));
-    pool.planes(planes, 1 << 14, |start, runs| {
-        let len = runs[0].len();
-        fn seg(v: &[f32], ch: usize, n: usize, start: usize, len: usize) -> &[f32] {
-            &v[ch * n + start..ch * n + start + len]
-        }
-        let gamma = Map::Gamma { gamma: 2.2, clamp: true };
-        for ch in 0..3 {
-            for (src, dst) in [(seg(r, ch, n, start, len), ch), (seg(t, ch, n, start, len), 3 + ch)] {
-                let sv = View::new(src, 1, len, 1).expect("a run");
-                tonemap::map::<F32>(isa, gamma, &sv, &mut ViewMut::new(runs[dst], 1, len, 1).expect("a run"))
-                    .expect("checked ISA and shapes");
-            }
-            runs[6 + ch].copy_from_slice(seg(a, ch, n, start, len));
-            for (o, &v) in runs[9 + ch].iter_mut().zip(seg(nrm, ch, n, start, len)) {
-                *o = v * 0.5 + 0.5;
-            }
-            let (rest, al) = runs[13..].split_at_mut(6);
-            let (cr1, crt) = rest.split_at_mut(3);
-            let (rv, tv, av) = (seg(r, ch, n, start, len), seg(t, ch, n, start, len), seg(a, ch, n, start, len));
-            for i in 0..len {
-                // Emitters are demodulated (and remodulated) by 1.
-                let q = if emitters && crate::methods::is_emitter(a, n, start + i) { 1.0 } else { av[i] + EPS };
-                al[ch][i] = q;
-                cr1[ch][i] = rv[i] / q;
-                crt[ch][i] = tv[i] / q;
-            }
-        }
-        for (o, &v) in runs[12].iter_mut().zip(seg(d, 0, n, start, len)) {
-            *o = (v - lo) * inv;
-        }
-    });
-    Ok(())
+    features::demodulation(pool, f.require(Buffer::Albedo, "afn")?, f.width, f.height, d);
+    features::network_inputs(pool, f, "afn", e, &[r, t], d, x, &mut [c1, ct])?;
+    Ok(e)
 }
 
 /// The training buffers of a crop, in `wss[0].aux` (the refinement net's
 /// workspace is `wss[1]`).
 pub mod buf {
-    /// `c1, ct, alb, ref` (3 planes each) and the refinement's auxiliary
-    /// buffers (7): 19 planes, full scale.
+    /// `c1, ct, alb, ref` (3 planes each), the refinement's auxiliary
+    /// buffers (7) and the frame's exposure (1, constant): 20 planes, full
+    /// scale.
     pub const DATA: usize = 0;
     /// `K_1spp` (49, half).
     pub const K1: usize = 1;
@@ -244,7 +201,7 @@ pub mod buf {
     /// Scratch of the apply.
     pub const SCRATCH: usize = 17;
     /// Planes of [`DATA`].
-    pub const DATA_PLANES: usize = 19;
+    pub const DATA_PLANES: usize = 20;
 }
 
 /// Allocates a crop's training buffers once.
@@ -312,7 +269,9 @@ pub fn head(
     let (c1, rest_d) = data.split_at(3 * n);
     let (ct, rest_d) = rest_d.split_at(3 * n);
     let (alb, rest_d) = rest_d.split_at(3 * n);
-    let (reff, feats) = rest_d.split_at(3 * n);
+    let (reff, rest_d) = rest_d.split_at(3 * n);
+    let (feats, expo) = rest_d.split_at(7 * n);
+    let e = expo[0];
     // Kernels and the fusion weight.
     softmax::channel_softmax::<F32>(isa, &v(logit1, TAPS, wh, hh)?, &mut vm(k1, TAPS, wh, hh)?)?;
     softmax::channel_softmax::<F32>(isa, &v(&logit_t[..TAPS * n], TAPS, w, h)?, &mut vm(kt, TAPS, w, h)?)?;
@@ -344,18 +303,18 @@ pub fn head(
     } else {
         ib.copy_from_slice(ft);
     }
-    // Refinement in log1p space.
+    // Refinement in log1p space of the exposure-scaled image.
     if refine {
         let ws1 = &mut rest[0];
         let inp = ws1.input_mut();
         for (d, &iv) in inp[..3 * n].iter_mut().zip(ib.iter()) {
-            *d = iv.max(0.0).ln_1p();
+            *d = (e * iv).max(0.0).ln_1p();
         }
         inp[3 * n..].copy_from_slice(feats);
         nets.forward(1, ws1)?;
         let rr = ws1.output();
         for k in 0..3 * n {
-            ob[k] = (ib[k].max(0.0).ln_1p() + rr[k]).exp_m1();
+            ob[k] = ((e * ib[k]).max(0.0).ln_1p() + rr[k]).exp_m1() / e;
         }
     } else {
         ob.copy_from_slice(ib);
@@ -364,19 +323,19 @@ pub fn head(
     for k in 0..3 * n {
         outb[k] = ob[k] * alb[k];
     }
-    let l = loss.eval(outb, reff, g_out, scale);
+    let l = loss.eval(outb, reff, g_out, scale, e);
     // Back through the remodulation and the refinement to i.
     if refine {
         let ws1 = &mut rest[0];
         let (_, rg, _) = ws1.head_parts();
         for k in 0..3 * n {
-            rg[k] = g_out[k] * alb[k] * (ob[k] + 1.0);
+            rg[k] = rg_value(g_out[k], alb[k], ob[k], e);
         }
         nets.backward(1, ws1)?;
         let gin = ws1.input_grad();
         for k in 0..3 * n {
-            let through = rg_value(g_out[k], alb[k], ob[k]) + gin[k];
-            g_i[k] = if ib[k] > 0.0 { through / (1.0 + ib[k]) } else { 0.0 };
+            let through = rg_value(g_out[k], alb[k], ob[k], e) + gin[k];
+            g_i[k] = if ib[k] > 0.0 { through * e / (1.0 + e * ib[k]) } else { 0.0 };
         }
     } else {
         for k in 0..3 * n {
@@ -429,11 +388,11 @@ pub fn head(
     Ok(l)
 }
 
-/// The refinement output's gradient: `d out / d r = alb (o + 1)` times the
-/// output's gradient.
+/// The refinement output's gradient: with `o = expm1(log1p(e i) + r) / e`,
+/// `d out / d r = alb (o + 1 / e)` times the output's gradient.
 #[inline]
-fn rg_value(g_out: f32, alb: f32, o: f32) -> f32 {
-    g_out * alb * (o + 1.0)
+fn rg_value(g_out: f32, alb: f32, o: f32, e: f32) -> f32 {
+    g_out * alb * (o + 1.0 / e)
 }
 
 /// The `afn` method: temporal accumulation, the kernel predictor, the two
@@ -502,6 +461,7 @@ impl<P: HostPrecision> Afn<P> {
     /// For a sequence starting with `first`, with the weights in `file`.
     pub fn new(first: &Frame, file: &File, refine: bool) -> Result<Self> {
         let (kn, rn) = (kernel_net()?, refine_net()?);
+        file.expect_transform(features::TRANSFORM)?;
         let params = split_params(file, &kn, &rn)?;
         let variant = match file.meta("variant") {
             None => Variant::Fusion,
@@ -649,8 +609,7 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
         }
         let [x, c1, ct, alb] = bufs.get_disjoint_mut([0, 1, 2, 3]).expect("four buffers");
         let variant = self.variant;
-        let emitters = P::FIXED_POINT;
-        t.time("network inputs", || inputs(&ctx.pool, isa, variant, f, &ta, x, c1, ct, alb, emitters))?;
+        let e = t.time("network inputs", || inputs(&ctx.pool, variant, f, &ta, x, c1, ct, alb))?;
         if self.infer.is_none() {
             let (body, head_at) = body_net(&self.kernel_net)?;
             let last = *self.kernel_net.convs.last().expect("the head is a conv");
@@ -664,7 +623,7 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
                 let mut rin = vec![0.0f32; RIN * n];
                 rin[3 * n..].copy_from_slice(&x[6 * n..]);
                 for (d, &tv) in rin[..3 * n].iter_mut().zip(ct.iter()) {
-                    *d = tv.max(0.0).ln_1p();
+                    *d = (e * tv).max(0.0).ln_1p();
                 }
                 (Some(br), Some(r32.ranges(ctx, Planes::<f32>::from_vec(RIN, w, h, rin))?))
             } else {
@@ -754,14 +713,14 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
         if self.refine {
             let mut rin = vec![0.0f32; RIN * n];
             for (d, &iv) in rin[..3 * n].iter_mut().zip(&i) {
-                *d = iv.max(0.0).ln_1p();
+                *d = (e * iv).max(0.0).ln_1p();
             }
             rin[3 * n..].copy_from_slice(&x[6 * n..]);
             let mut rp = Planes::<P::Store>::new(RIN, w, h).with_frac(rinf.input_frac());
             P::encode(&rin, &mut rp.data, rp.frac);
             let r = t.time("refinement", || rinf.run(ctx, rp))?.decode::<P>();
             for k in 0..3 * n {
-                out[k] = (rin[k] + r[k]).exp_m1() * alb[k];
+                out[k] = (rin[k] + r[k]).exp_m1() / e * alb[k];
             }
         } else {
             for k in 0..3 * n {

@@ -43,7 +43,6 @@ use std::marker::PhantomData;
 
 use mcdenoise_core::atrous::{self, noise, AtrousGuides, AtrousParams, SureSource, SURE_CANDIDATES};
 use mcdenoise_core::softmax::{self, WindowPath};
-use mcdenoise_core::tonemap;
 use mcdenoise_core::{View, ViewMut};
 
 use super::{Ctx, Denoiser, Plan, Timings};
@@ -55,11 +54,9 @@ use crate::runtime::precision::{store_bytes, store_is, HostPrecision, Kind, Plan
 mod plan;
 mod prepare;
 
-use crate::methods::is_emitter;
-use prepare::{demodulate, firefly_clamp, prepare, Bufs};
+use crate::methods::features::{self, is_emitter};
+use prepare::{demodulate, firefly_clamp, prepare, Bufs, RUN};
 
-/// Albedo epsilon of (de)modulation.
-pub const ALBEDO_EPS: f32 = 1e-3;
 /// Levels (hole spacings 1, 2, 4, 8, 16).
 pub const LEVELS: u32 = 5;
 /// Radius of the box the noise variance estimate is smoothed with (3x3, as SVGF).
@@ -405,6 +402,34 @@ impl<P: HostPrecision> Atrous<P> {
     ) -> Result<Vec<f32>> {
         let (w, h) = (f.width, f.height);
         let n = w * h;
+        let mut demod_buf = std::mem::take(&mut bf.demod);
+        let demod = match albedo {
+            Some(al) => {
+                demod_buf.resize(3 * n, 0.0);
+                t.time("demodulation factor", || features::demodulation(&ctx.pool, al, w, h, &mut demod_buf));
+                Some(&demod_buf[..])
+            }
+            None => None,
+        };
+        let result =
+            self.run_demodulated(f, ctx, t, bf, (a, b, albedo, demod), (normal, position, depth), (groups, nsrc, nout));
+        bf.demod = demod_buf;
+        result
+    }
+
+    #[allow(clippy::too_many_arguments, clippy::type_complexity)]
+    fn run_demodulated(
+        &self,
+        f: &Frame,
+        ctx: &mut Ctx,
+        t: &mut Timings,
+        bf: &mut Bufs<P::Store>,
+        (a, b, albedo, demod): (&[f32], Option<&[f32]>, Option<&[f32]>, Option<&[f32]>),
+        (normal, position, depth): (Option<&[f32]>, Option<&[f32]>, Option<&[f32]>),
+        (groups, nsrc, nout): (usize, usize, usize),
+    ) -> Result<Vec<f32>> {
+        let (w, h) = (f.width, f.height);
+        let n = w * h;
         let sure_pair = self.sure && self.pair;
         let sure_single = self.sure && !self.pair;
         // The firefly clamp works on the demodulated estimates, which
@@ -414,7 +439,7 @@ impl<P: HostPrecision> Atrous<P> {
             let (ca, rest) = bf.clamp.split_at_mut(3 * n);
             let (cb, scratch) = rest.split_at_mut(if b.is_some() { 3 * n } else { 0 });
             t.time("firefly clamp", || {
-                demodulate(ctx, a, albedo, ca);
+                demodulate(ctx, a, demod, ca);
                 // In sparse light (relative noise of one estimate above
                 // CLAMP_REL) the threshold rises with the noise level: the
                 // bright samples are most of the signal there.
@@ -422,13 +447,13 @@ impl<P: HostPrecision> Atrous<P> {
                 let k = k * (rel / CLAMP_REL).clamp(1.0, 1e6);
                 firefly_clamp(ctx, ca, a, albedo, scratch, w, h, k);
                 if let Some(b) = b {
-                    demodulate(ctx, b, albedo, cb);
+                    demodulate(ctx, b, demod, cb);
                     firefly_clamp(ctx, cb, b, albedo, scratch, w, h, k);
                 }
             });
             (&*ca, b.map(|_| &*cb), None)
         } else {
-            (a, b, albedo)
+            (a, b, demod)
         };
         t.time("prepare", || prepare(ctx, n, pa, pb, demod_by, sure_pair, &mut bf.c0, &mut bf.noise_raw));
         // Noise variance of the filtered input, per pixel.
@@ -585,27 +610,17 @@ impl<P: HostPrecision> Atrous<P> {
                 }
             }
         };
-        if let (Some(al), Some(base)) = (albedo, base) {
-            t.time("remodulate", || -> Result<()> {
-                let (sv, av) = (View::new(base, 3, w, h)?, View::new(al, 3, w, h)?);
-                bands(ctx, ViewMut::new(&mut out, 3, w, h)?, 1, 0, |band, y0, _| {
-                    let rows = band.height();
-                    tonemap::remodulate::<mcdenoise_core::F32>(
-                        isa,
-                        &sv.rows(y0, rows)?,
-                        &av.rows(y0, rows)?,
-                        ALBEDO_EPS,
-                        band,
-                    )
-                })?;
-                // Emitters were demodulated by 1: remodulated by 1.
-                for i in (0..n).filter(|&i| prepare::is_emitter(al, n, i)) {
-                    for c in 0..3 {
-                        out[c * n + i] = base[c * n + i];
+        if let (Some(d), Some(base)) = (demod, base) {
+            t.time("remodulate", || {
+                ctx.pool.planes(out.chunks_mut(n).collect(), RUN, |s, runs| {
+                    for (c, o) in runs.iter_mut().enumerate() {
+                        let (bc, dc) = (&base[c * n + s..], &d[c * n + s..]);
+                        for ((o, &v), &q) in o.iter_mut().zip(bc).zip(dc) {
+                            *o = v * q;
+                        }
                     }
-                }
-                Ok(())
-            })?;
+                })
+            });
         }
         // The output passes through the pipeline's storage precision.
         if P::borrow_f32(&out).is_none() {
@@ -648,7 +663,7 @@ fn light_outlines(ctx: &Ctx, noise: &mut [f32], raw: &[f32], al: &[f32], w: usiz
     if n == 0 {
         return;
     }
-    let row_has = |y: usize| al[y * w..(y + 1) * w].iter().any(|&v| v < crate::methods::EMITTER_ALBEDO);
+    let row_has = |y: usize| (y * w..(y + 1) * w).any(|i| is_emitter(al, n, i));
     ctx.pool.planes(vec![noise], w * 16, |s, runs| {
         let run = &mut *runs[0];
         let (ya, yb) = (s / w, (s + run.len()) / w);

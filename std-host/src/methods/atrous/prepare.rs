@@ -2,7 +2,7 @@
 //! demodulation and, with a second estimate, the mean, half-difference and
 //! raw noise of the pair.
 
-use super::{ALBEDO_EPS, LEVELS, SURE_SAFETY_PAIR};
+use super::{LEVELS, SURE_SAFETY_PAIR};
 
 /// `H = (A - B) / 2` times the square root of the pair's SURE safety factor
 /// (so its detail energy, SURE's noise term, comes out times the factor).
@@ -36,6 +36,9 @@ pub(super) struct Bufs<T: bytemuck::Pod> {
     /// The firefly clamp's demodulated, clamped estimates (`A`, and `B` with
     /// a pair), then its luminance and factor planes; empty when it is off.
     pub(super) clamp: Aligned<f32>,
+    /// The demodulation factor ([`crate::methods::features`]), 3 planes;
+    /// empty without albedo.
+    pub(super) demod: Vec<f32>,
 }
 
 impl<T: bytemuck::Pod + Default> Bufs<T> {
@@ -54,12 +57,13 @@ impl<T: bytemuck::Pod + Default> Bufs<T> {
             levels: (0..kept).map(|_| Planes::new(nout, w, h)).collect(),
             out: Aligned::zeroed(3 * n),
             clamp: Aligned::zeroed(clamp_planes * n),
+            demod: Vec::new(),
         }
     }
 }
 
 /// Pixels per job of the per-pixel passes.
-const RUN: usize = 1 << 14;
+pub(super) const RUN: usize = 1 << 14;
 
 /// Demodulates `a` (and `b`) and forms the level-0 images: with `b`, the
 /// mean `M` (and, for `half_diff`, `H = (A - B) / 2`) and the raw noise
@@ -140,16 +144,13 @@ pub(super) fn prepare(
     });
 }
 
-pub(super) use crate::methods::is_emitter;
+pub(super) use crate::methods::features::is_emitter;
 
-/// What channel `c` of pixel `i` is demodulated by: `albedo + eps`, or 1 for an emitter.
+/// What channel `c` of pixel `i` is demodulated by: the factor `d` of
+/// [`crate::methods::features`].
 #[inline]
-pub(super) fn demod_factor(al: &[f32], n: usize, c: usize, i: usize) -> f32 {
-    if is_emitter(al, n, i) {
-        1.0
-    } else {
-        al[c * n + i] + ALBEDO_EPS
-    }
+pub(super) fn demod_factor(d: &[f32], n: usize, c: usize, i: usize) -> f32 {
+    d[c * n + i]
 }
 
 /// The firefly clamp, in place on the 3 demodulated planes of `img` (`w x
@@ -157,7 +158,7 @@ pub(super) fn demod_factor(al: &[f32], n: usize, c: usize, i: usize) -> f32 {
 /// channels of `radiance`) `L` exceeds `T = m + k s`, with
 /// `m` and `s` the mean and standard deviation of its 5x5 neighbours (the
 /// centre left out, the window clipped at the border), is scaled by `T / L`
-/// (its colour kept). Emitters ([`crate::methods::EMITTER_ALBEDO`]) are
+/// (its colour kept). Emitters ([`crate::methods::features::is_emitter`]) are
 /// left alone (they are filtered as radiance). The test is on radiance,
 /// not on the demodulated values, because a pixel straddling a light's
 /// edge has a small albedo and so a demodulated value far above its

@@ -46,6 +46,10 @@ use crate::runtime::par::Pool;
 pub const CIN: usize = 15;
 /// Adam's learning rate.
 pub const LR: f32 = 1e-3;
+/// The input transform of the online network (log1p colour of both
+/// pilots, the warped output, albedo, normal), recorded in a saved state
+/// and checked when one is loaded.
+pub const TRANSFORM: &str = "mcdenoise-cross-1";
 /// The relMSE's epsilon.
 pub const REL_EPS: f32 = 1e-2;
 /// Rows of halo around each strip (a multiple of 4, over the receptive field).
@@ -215,6 +219,7 @@ impl Cross {
         let (init, adam) = match load {
             Some(path) => {
                 let file = File::read(path)?;
+                file.expect_transform(TRANSFORM)?;
                 let p = file.params(&net, "cross", &["adam.m", "adam.v"])?;
                 let m = file.tensor("adam.m", &[net.params])?;
                 let v = file.tensor("adam.v", &[net.params])?;
@@ -296,7 +301,7 @@ impl Cross {
             weights::Tensor { name: "adam.m".into(), shape: vec![self.net.params], data: m },
             weights::Tensor { name: "adam.v".into(), shape: vec![self.net.params], data: v },
         ];
-        let meta = [("adam_t", t.to_string()), ("seed", self.seed.to_string())];
+        let meta = [("adam_t", t.to_string()), ("seed", self.seed.to_string()), ("transform", TRANSFORM.to_string())];
         weights::save_model(path, "cross", &[("", &self.net, self.params())], Form::Branches, &meta, &adam)
     }
 }
@@ -451,7 +456,7 @@ impl Denoiser for Cross {
         let isa = ctx.isa;
         let (strips, crop_h) = strips(h, hp);
         if self.trainer.is_none() {
-            let mut tr = Trainer::new(self.net.clone(), self.init.clone(), strips.len(), wp, crop_h, self.lr, 0.0);
+            let mut tr = Trainer::new(self.net.clone(), self.init.clone(), strips.len(), wp, crop_h, self.lr, 0.0)?;
             if let Some((m, v, step)) = self.adam.take() {
                 tr.adam.m = m;
                 tr.adam.v = v;

@@ -3,18 +3,18 @@
 //! (3, 5, ..., 13) and six fusion logits; the fused importance filter of the
 //! core turns them into the denoised image without ever building a kernel.
 //!
-//! Inputs (10 channels, as the authors' code): `clamp(t, 0, 1)^(1/2.2)` of
-//! the temporally accumulated radiance `t` (3), albedo `a` (3), `n * 0.5 +
-//! 0.5` of the normal (3), depth normalised to `[0, 1]` over the frame (1).
-//! The filter runs on the demodulated irradiance `c = t / (a + EPS)` and
-//! remodulates with `a + EPS` (in fixed point, 1 instead of `a + EPS` for
-//! emitters, [`crate::methods::EMITTER_ALBEDO`]; see [`inputs`]):
-//! `out(p) = (a(p) + EPS) sum_k alpha_k(p) [sum_q e_k(q) c(q)] / [sum_q e_k(q)]`.
+//! Inputs (10 channels, as the authors' code, with the HDR colour through
+//! [`crate::methods::features`]' exposure and transfer curve instead of a
+//! clamp): the temporally accumulated radiance `t` (3), albedo (3), normal
+//! (3), depth normalised over the frame (1). The filter runs on the
+//! demodulated irradiance `c = t / d` and remodulates with `d`, the
+//! demodulation factor of [`crate::methods::features`] (see [`inputs`]):
+//! `out(p) = d(p) sum_k alpha_k(p) [sum_q e_k(q) c(q)] / [sum_q e_k(q)]`.
 //!
 //! ImportanceNet: 6 layers (the authors': 10 -> 14, four 14 -> 14, 14 -> 12)
 //! or 3 (10 -> 14 -> 14 -> 12), each a RepVGG block (5x5 + 3x3 + 1x1, and
 //! the identity on the 14 -> 14 layers), LeakyReLU(0.1) after every layer
-//! but the last. The loss is SMAPE (eps 0.01) on linear HDR.
+//! but the last.
 
 use mcdenoise_core::conv::Activation;
 use mcdenoise_core::softmax::{self, grad as sgrad, FusedInputs, WindowPath};
@@ -22,15 +22,13 @@ use mcdenoise_core::{View, ViewMut, F32};
 
 use crate::error::{HostError, Result};
 use crate::io::frame::{Buffer, Frame};
-use crate::methods::{Ctx, Denoiser, Plan, TemporalAccumulation, Timings};
+use crate::methods::{features, Ctx, Denoiser, Plan, TemporalAccumulation, Timings};
 use crate::nn::infer::Inference;
 use crate::nn::loss::Loss;
 use crate::nn::weights::File;
 use crate::nn::{Conv, Layer, Net, NetDesc, Workspace};
 use crate::runtime::precision::{HostPrecision, Kind, Planes};
 
-/// Albedo epsilon of the (de)modulation.
-pub const EPS: f32 = 0.01;
 /// The window sizes, one importance map each.
 pub const SIZES: [usize; 6] = [3, 5, 7, 9, 11, 13];
 /// Input channels.
@@ -134,74 +132,31 @@ pub fn check_inputs(f: &Frame) -> Result<()> {
     Ok(())
 }
 
-/// The network input, demodulated irradiance and remodulation albedo of a
-/// frame from its accumulated radiance `t` (3 planes): `x` (10 planes), `c`
-/// (3), `alb` (3, `a + EPS`). Runs of pixels in parallel on `pool`; the
-/// gamma through the core's tone map on `isa` (its SIMD `pow`).
-///
-/// `emitters`: demodulate (and remodulate) emitters by 1. Fixed point needs
-/// it (an emitter's `radiance / EPS` would set the input format and leave
-/// ordinary irradiance a few units); the bundled networks were trained
-/// without it, and in f32 it costs them 0.2 to 0.5 dB on sequences with
-/// lights in view, so f32 and f16 run without it until they are retrained.
-#[allow(clippy::too_many_arguments)]
+/// The network input `x` (10 planes), the demodulated irradiance `c` (3)
+/// and the demodulation factor `d` (3; the filter's output is remodulated
+/// by it) of a frame from its accumulated radiance `t` (3 planes), by the
+/// rules of [`crate::methods::features`]; returns the frame's exposure.
 pub fn inputs(
     pool: &crate::runtime::par::Pool,
-    isa: mcdenoise_core::Isa,
     f: &Frame,
     t: &[f32],
     x: &mut [f32],
     c: &mut [f32],
-    alb: &mut [f32],
-    emitters: bool,
-) -> Result<()> {
-    let n = f.width * f.height;
-    let a = f.require(Buffer::Albedo, "wskp")?;
-    let nrm = f.require(Buffer::Normal, "wskp")?;
-    let d = f.require(Buffer::Depth, "wskp")?;
-    isa.check()?;
-    let (lo, hi) = d.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &v| (l.min(v), h.max(v)));
-    let span = hi - lo;
-    let inv = if span > 0.0 { 1.0 / span } else { 0.0 };
-    let mut planes: Vec<&mut [f32]> = x.chunks_mut(n).collect();
-    planes.extend(c.chunks_mut(n));
-    planes.extend(alb.chunks_mut(n));
-    pool.planes(planes, 1 << 14, |start, runs| {
-        let len = runs[0].len();
-        fn seg(v: &[f32], ch: usize, n: usize, start: usize, len: usize) -> &[f32] {
-            &v[ch * n + start..ch * n + start + len]
-        }
-        for ch in 0..3 {
-            let tv = seg(t, ch, n, start, len);
-            let src = View::new(tv, 1, len, 1).expect("a run");
-            let dst = &mut ViewMut::new(runs[ch], 1, len, 1).expect("a run");
-            mcdenoise_core::tonemap::map::<F32>(
-                isa,
-                mcdenoise_core::tonemap::Map::Gamma { gamma: 2.2, clamp: true },
-                &src,
-                dst,
-            )
-            .expect("checked ISA and shapes");
-            runs[3 + ch].copy_from_slice(seg(a, ch, n, start, len));
-            for (o, &v) in runs[6 + ch].iter_mut().zip(seg(nrm, ch, n, start, len)) {
-                *o = v * 0.5 + 0.5;
-            }
-            let (cs, als) = runs[10..].split_at_mut(3);
-            for (i, ((co, ao), &tv)) in cs[ch].iter_mut().zip(als[ch].iter_mut()).zip(tv).enumerate() {
-                // Emitters are demodulated (and remodulated) by 1.
-                let emitter = emitters && crate::methods::is_emitter(a, n, start + i);
-                *ao = if emitter { 1.0 } else { a[ch * n + start + i] + EPS };
-                *co = tv / *ao;
-            }
-        }
-        for (o, &v) in runs[9].iter_mut().zip(seg(d, 0, n, start, len)) {
-            *o = (v - lo) * inv;
-        }
-    });
-    Ok(())
+    d: &mut [f32],
+) -> Result<f32> {
+    check_inputs(f)?;
+    let (w, h) = (f.width, f.height);
+    features::demodulation(pool, f.require(Buffer::Albedo, "wskp")?, w, h, d);
+    let e = features::exposure(f.require(Buffer::Color, "wskp")?, w, h);
+    features::network_inputs(pool, f, "wskp", e, &[t], d, x, &mut [c])?;
+    Ok(e)
 }
 
-/// The per-crop buffers of training: `[c, alb, ref]` (9 planes), the
+/// Planes of a training crop's data: `c`, `d`, the reference (3 each) and
+/// the frame's exposure (1, constant).
+pub const DATA_PLANES: usize = 10;
+
+/// The per-crop buffers of training: the data ([`DATA_PLANES`]), the
 /// filter's output, its gradient, the radiance gradient, and the two
 /// scratch areas.
 pub fn crop_buffers(ws: &mut Workspace) {
@@ -209,7 +164,7 @@ pub fn crop_buffers(ws: &mut Workspace) {
         let (w, h) = ws.size();
         let n = w * h;
         ws.aux = vec![
-            vec![0.0; 9 * n],
+            vec![0.0; DATA_PLANES * n],
             vec![0.0; 3 * n],
             vec![0.0; 3 * n],
             vec![0.0; 3 * n],
@@ -240,7 +195,7 @@ pub fn head(ws: &mut Workspace, sizes: Sizes, loss: Loss, scale: f32, isa: mcden
         radiance: View::new(&data[..3 * n], 3, w, h)?,
     };
     softmax::fused_filter::<F32>(isa, WindowPath::Separable, &inp, &mut ViewMut::new(out, 3, w, h)?, 0, fs)?;
-    let l = loss.eval(out, &data[6 * n..9 * n], g, scale);
+    let l = loss.eval(out, &data[6 * n..9 * n], g, scale, data[9 * n]);
     let gv = View::new(g, 3, w, h)?;
     let (di, df) = dy.split_at_mut(m * n);
     let mut dfv = if m > 1 { Some(ViewMut::new(&mut df[..m * n], m, w, h)?) } else { None };
@@ -291,6 +246,7 @@ impl<P: HostPrecision> Wskp<P> {
         let sizes = Sizes::of_file(file)?;
         let net = net_for(layers, sizes)?;
         file.expect_meta("layers", &layers.to_string())?;
+        file.expect_transform(features::TRANSFORM)?;
         let params = file.params(&net, "wskp", &["adam.m", "adam.v"])?;
         Self::from_params(first, net, params, layers, sizes)
     }
@@ -383,8 +339,7 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
                 &bufs.ta
             }
         };
-        let emitters = P::FIXED_POINT;
-        t.time("network inputs", || inputs(&ctx.pool, isa, f, ta, &mut bufs.x, &mut bufs.c, &mut bufs.alb, emitters))?;
+        t.time("network inputs", || inputs(&ctx.pool, f, ta, &mut bufs.x, &mut bufs.c, &mut bufs.alb))?;
         if self.infer.is_none() {
             // Fixed point: the formats from an f32 run on the first frame.
             let ranges = if P::FIXED_POINT {

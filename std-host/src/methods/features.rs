@@ -1,0 +1,455 @@
+//! The per-pixel features every method derives from a frame's buffers, in
+//! one place: the demodulation factor (what radiance is divided by before
+//! filtering and multiplied by after), the exposure, the HDR transfer curve
+//! of the networks' colour inputs, normals and depth as network inputs.
+//! Every method and every precision uses these, in inference and in
+//! training; a weights file records [`TRANSFORM`] and is refused under
+//! another one.
+//!
+//! # Demodulation
+//!
+//! Filtering irradiance (radiance over albedo) instead of radiance keeps
+//! texture out of the filter. It needs a factor `d` that is continuous in
+//! the albedo and does not amplify, because the filters average
+//! neighbours' `L(q) / d(q)` and multiply by `d(p)`: a neighbour whose
+//! factor is much smaller than the pixel's brings its radiance in scaled by
+//! `d(p) / d(q)`. Renderers' albedo buffers are not always reflectances:
+//! Mitsuba's raw AOV is 0 on smooth metals and glass, runs from about 46 at
+//! normal incidence to 1e-20 at grazing angles over one rough gold sphere,
+//! and emitters seen directly have albedo 0. So, per pixel and channel,
+//! from the albedo `a`:
+//!
+//! 1. `a` is clamped to `[0, 1]` (beyond 1 it is no reflectance);
+//! 2. the albedo's weight `w = smoothstep(0, TAU, max(a_r, a_g, a_b))` says
+//!    how much it tells about the pixel: where it is (near) zero (emitters,
+//!    glass, mirrors in raw AOVs, black paint) the pixel is filtered as
+//!    radiance, `b = w * max(a, KAPPA * max_c a) + (1 - w)`, which runs
+//!    continuously from 1 at albedo 0 to the albedo itself from `TAU` on
+//!    (the chromatic floor `KAPPA` keeps a saturated colour's dark channels
+//!    from being divided by nearly nothing);
+//! 3. `d` is the smallest factor at least `b` whose logarithm changes by at
+//!    most `ln(1 / DECAY)` a pixel step: `d(p) = max_q b(q) DECAY^(|dx| +
+//!    |dy|)`. Any two pixels `r` steps apart then have factors within
+//!    `DECAY^-r` of each other, so no filter window mixes values demodulated
+//!    by very different factors (a 3x3 window at most 4x, 7x7 64x), whatever
+//!    the albedo buffer holds; a texture's albedo edges keep their contrast
+//!    outside a band of about `log(contrast) / log(1 / DECAY)` pixels.
+//!
+//! No threshold splits a surface: `d` is continuous in the albedo, equal to
+//! it on reflectances above `TAU` away from much brighter neighbours, 1 where
+//! the albedo is 0, and at most 1 everywhere.
+//!
+//! # Network inputs
+//!
+//! The learned methods scale the colour by the frame's exposure (OIDN's
+//! autoexposure: `0.18 / exp(mean log luminance)` over 16x16 bins brighter
+//! than 1e-8) and pass it through `log1p` ([`transfer`]) before the
+//! network; the albedo input is `clamp(a, 0, 1)`, the normal `n / 2 + 1/2`,
+//! the depth normalised over the frame. The filters themselves are linear
+//! in the radiance, so with exposure-normalised inputs a frame scaled by `k`
+//! is denoised into the output scaled by `k`.
+
+use crate::io::frame::{Buffer, Frame};
+use crate::runtime::par::Pool;
+
+/// The input transform's name and version, recorded in every weights file
+/// of a learned method (metadata `transform`): weights trained under one
+/// transform are refused under another.
+pub const TRANSFORM: &str = "mcdenoise-features-2";
+
+/// The albedo (largest channel) from which a pixel is fully demodulated;
+/// below it the factor blends towards 1 (radiance).
+pub const TAU: f32 = 0.02;
+/// A channel's factor is at least this fraction of the pixel's largest
+/// channel (saturated albedo colours).
+pub const KAPPA: f32 = 0.1;
+/// Neighbouring factors differ by at most `1 / DECAY` per pixel step.
+pub const DECAY: f32 = 0.5;
+
+/// Exposure's target: the frame's mean log luminance is mapped to this.
+pub const EXPOSURE_KEY: f32 = 0.18;
+
+/// The factor of step 2 of the module's rule for one pixel: albedo `a`
+/// (any values) to `b` (in `(0, 1]` per channel).
+#[inline]
+pub fn blend(a: [f32; 3]) -> [f32; 3] {
+    let c = a.map(|v| if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) });
+    let m = c[0].max(c[1]).max(c[2]);
+    let t = (m / TAU).min(1.0);
+    let w = t * t * (3.0 - 2.0 * t);
+    c.map(|v| w * v.max(KAPPA * m) + (1.0 - w))
+}
+
+/// The demodulation factor `d` (3 planes of `w x h`, written into `d`) of
+/// the albedo `albedo` (3 planes): the module's rule. Rows in parallel on
+/// `pool`, then columns.
+pub fn demodulation(pool: &Pool, albedo: &[f32], w: usize, h: usize, d: &mut [f32]) {
+    let n = w * h;
+    assert!(albedo.len() >= 3 * n && d.len() >= 3 * n, "demodulation: 3 planes of {w}x{h}");
+    if n == 0 {
+        return;
+    }
+    // Steps 1 and 2, and the envelope along each row (forward, backward).
+    {
+        let (d0, rest) = d[..3 * n].split_at_mut(n);
+        let (d1, d2) = rest.split_at_mut(n);
+        let rows: Vec<(usize, &mut [f32], &mut [f32], &mut [f32])> = d0
+            .chunks_mut(w)
+            .zip(d1.chunks_mut(w))
+            .zip(d2.chunks_mut(w))
+            .enumerate()
+            .map(|(y, ((a, b), c))| (y, a, b, c))
+            .collect();
+        pool.install(|| {
+            use rayon::prelude::*;
+            rows.into_par_iter().for_each(|(y, r0, r1, r2)| {
+                for x in 0..w {
+                    let i = y * w + x;
+                    let b = blend([albedo[i], albedo[n + i], albedo[2 * n + i]]);
+                    r0[x] = b[0];
+                    r1[x] = b[1];
+                    r2[x] = b[2];
+                }
+                for r in [r0, r1, r2] {
+                    for x in 1..w {
+                        r[x] = r[x].max(DECAY * r[x - 1]);
+                    }
+                    for x in (0..w.saturating_sub(1)).rev() {
+                        r[x] = r[x].max(DECAY * r[x + 1]);
+                    }
+                }
+            });
+        });
+    }
+    // The envelope along columns: row by row (each row a vector operation),
+    // the planes and column blocks in parallel.
+    let block = 256usize;
+    let mut jobs: Vec<(usize, &mut [f32])> = Vec::new();
+    for plane in d[..3 * n].chunks_mut(n) {
+        jobs.push((0, plane));
+    }
+    pool.install(|| {
+        use rayon::prelude::*;
+        jobs.into_par_iter().for_each(|(_, plane)| {
+            for x0 in (0..w).step_by(block) {
+                let x1 = (x0 + block).min(w);
+                for y in 1..h {
+                    let (above, below) = plane.split_at_mut(y * w);
+                    let prev = &above[(y - 1) * w + x0..(y - 1) * w + x1];
+                    for (v, &p) in below[x0..x1].iter_mut().zip(prev) {
+                        *v = v.max(DECAY * p);
+                    }
+                }
+                for y in (0..h.saturating_sub(1)).rev() {
+                    let (above, below) = plane.split_at_mut((y + 1) * w);
+                    let next = &below[x0..x1];
+                    for (v, &p) in above[y * w + x0..y * w + x1].iter_mut().zip(next) {
+                        *v = v.max(DECAY * p);
+                    }
+                }
+            }
+        });
+    });
+}
+
+/// The demodulation factor of a frame's albedo (3 planes), or `None`
+/// without albedo.
+pub fn frame_demodulation(pool: &Pool, f: &Frame) -> Option<Vec<f32>> {
+    let a = f.get(Buffer::Albedo)?;
+    let mut d = vec![0.0f32; 3 * f.width * f.height];
+    demodulation(pool, a, f.width, f.height, &mut d);
+    Some(d)
+}
+
+/// Rec. 709 luminance.
+#[inline]
+pub fn luminance(r: f32, g: f32, b: f32) -> f32 {
+    0.2126 * r + 0.7152 * g + 0.0722 * b
+}
+
+/// The exposure of linear radiance `rgb` (3 planes of `w x h`): the mean
+/// luminance over bins of at most 16x16 pixels, the mean of the logarithm
+/// over the bins brighter than 1e-8, `EXPOSURE_KEY / exp(mean)`; 1 for a
+/// frame with no such bin. Scaling the radiance by `k` scales the exposure
+/// by `1 / k` (exactly, up to rounding).
+pub fn exposure(rgb: &[f32], w: usize, h: usize) -> f32 {
+    let n = w * h;
+    if n == 0 || rgb.len() < 3 * n {
+        return 1.0;
+    }
+    let (bx, by) = (w.div_ceil(16), h.div_ceil(16));
+    let (mut sum, mut count) = (0.0f64, 0usize);
+    for j in 0..by {
+        let (y0, y1) = (j * h / by, (j + 1) * h / by);
+        for i in 0..bx {
+            let (x0, x1) = (i * w / bx, (i + 1) * w / bx);
+            let mut l = 0.0f64;
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    let p = y * w + x;
+                    let v = luminance(rgb[p], rgb[n + p], rgb[2 * n + p]);
+                    if v.is_finite() {
+                        l += v.max(0.0) as f64;
+                    }
+                }
+            }
+            let l = l / ((y1 - y0) * (x1 - x0)).max(1) as f64;
+            if l > 1e-8 {
+                sum += l.ln();
+                count += 1;
+            }
+        }
+    }
+    if count == 0 {
+        return 1.0;
+    }
+    let e = EXPOSURE_KEY as f64 / (sum / count as f64).exp();
+    if e.is_finite() && e > 0.0 {
+        e as f32
+    } else {
+        1.0
+    }
+}
+
+/// The HDR transfer curve of the networks' colour inputs, applied to
+/// exposure-scaled radiance: `log1p(max(x, 0))` (0.17 at the exposure
+/// key, 4.6 at 100 times it).
+#[inline]
+pub fn transfer(x: f32) -> f32 {
+    x.max(0.0).ln_1p()
+}
+
+/// The normal as a network input, `n / 2 + 1/2`.
+#[inline]
+pub fn normal_input(n: f32) -> f32 {
+    n * 0.5 + 0.5
+}
+
+/// The albedo as a network input, `clamp(a, 0, 1)` (NaN as 0).
+#[inline]
+pub fn albedo_input(a: f32) -> f32 {
+    if a.is_nan() {
+        0.0
+    } else {
+        a.clamp(0.0, 1.0)
+    }
+}
+
+/// Depth normalised over the frame: `(lo, 1 / (hi - lo))`, the scale 0 when
+/// the depth is constant; `(v - lo) * scale` is the input.
+pub fn depth_range(depth: &[f32]) -> (f32, f32) {
+    let (lo, hi) = depth
+        .iter()
+        .filter(|v| v.is_finite())
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &v| (l.min(v), h.max(v)));
+    if hi > lo {
+        (lo, 1.0 / (hi - lo))
+    } else {
+        (if lo.is_finite() { lo } else { 0.0 }, 0.0)
+    }
+}
+
+/// How much a pixel's albedo tells about it, the `w` of step 2 (0 where
+/// the albedo is 0: emitters, glass and mirrors in raw AOVs, black paint;
+/// 1 from `TAU` on). The à-trous methods' light-outline rule and firefly
+/// clamp treat pixels with `w < 1/2` as emitters.
+#[inline]
+pub fn albedo_weight(a: [f32; 3]) -> f32 {
+    let m = a.map(|v| if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) });
+    let t = (m[0].max(m[1]).max(m[2]) / TAU).min(1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+/// Whether pixel `i` of the 3-plane albedo `a` (`n` pixels a plane) has
+/// no albedo to speak of ([`albedo_weight`] below 1/2).
+#[inline]
+pub fn is_emitter(a: &[f32], n: usize, i: usize) -> bool {
+    albedo_weight([a[i], a[n + i], a[2 * n + i]]) < 0.5
+}
+
+/// The learned methods' network inputs and filter inputs of a frame, in
+/// one pass (runs of pixels in parallel on `pool`):
+/// - `x`: for each of `colours` (3 planes each, linear radiance),
+///   [`transfer`] of the colour times `exposure` (3 planes); then the albedo
+///   input (3), the normal input (3) and the depth normalised over the
+///   frame (1);
+/// - `demodulated[k]`: `colours[k] / d` (3 planes each), `d` the frame's
+///   demodulation factor (3 planes, [`demodulation`]).
+///
+/// The frame needs albedo, normal and depth (`who` names the method in
+/// the error).
+pub fn network_inputs(
+    pool: &Pool,
+    f: &Frame,
+    who: &str,
+    exposure: f32,
+    colours: &[&[f32]],
+    d: &[f32],
+    x: &mut [f32],
+    demodulated: &mut [&mut [f32]],
+) -> crate::Result<()> {
+    let n = f.width * f.height;
+    let a = f.require(Buffer::Albedo, who)?;
+    let nrm = f.require(Buffer::Normal, who)?;
+    let depth = f.require(Buffer::Depth, who)?;
+    let k = colours.len();
+    if x.len() != (3 * k + 7) * n || d.len() != 3 * n || demodulated.len() != k {
+        return Err(crate::HostError::Usage(format!("{who}: network input buffers of the wrong size")));
+    }
+    if colours.iter().any(|c| c.len() != 3 * n) || demodulated.iter().any(|c| c.len() != 3 * n) {
+        return Err(crate::HostError::Usage(format!("{who}: colour buffers of the wrong size")));
+    }
+    let (lo, scale) = depth_range(depth);
+    let mut planes: Vec<&mut [f32]> = x.chunks_mut(n.max(1)).collect();
+    for c in demodulated.iter_mut() {
+        planes.extend(c.chunks_mut(n.max(1)));
+    }
+    if n == 0 {
+        return Ok(());
+    }
+    pool.planes(planes, 1 << 14, |start, runs| {
+        let len = runs[0].len();
+        let seg = |v: &'_ [f32], ch: usize| -> std::ops::Range<usize> {
+            let _ = v;
+            ch * n + start..ch * n + start + len
+        };
+        let (xs, dem) = runs.split_at_mut(3 * k + 7);
+        for (j, col) in colours.iter().enumerate() {
+            for ch in 0..3 {
+                let src = &col[seg(col, ch)];
+                for (o, &v) in xs[3 * j + ch].iter_mut().zip(src) {
+                    *o = transfer(v * exposure);
+                }
+                let dv = &d[seg(d, ch)];
+                for ((o, &v), &q) in dem[3 * j + ch].iter_mut().zip(src).zip(dv) {
+                    *o = v / q;
+                }
+            }
+        }
+        for ch in 0..3 {
+            for (o, &v) in xs[3 * k + ch].iter_mut().zip(&a[seg(a, ch)]) {
+                *o = albedo_input(v);
+            }
+            for (o, &v) in xs[3 * k + 3 + ch].iter_mut().zip(&nrm[seg(nrm, ch)]) {
+                *o = normal_input(v);
+            }
+        }
+        for (o, &v) in xs[3 * k + 6].iter_mut().zip(&depth[seg(depth, 0)]) {
+            *o = if v.is_finite() { (v - lo) * scale } else { 0.0 };
+        }
+    });
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pool() -> Pool {
+        Pool::new(2).unwrap()
+    }
+
+    /// The envelope against its definition, `max_q b(q) DECAY^(|dx|+|dy|)`.
+    #[test]
+    fn demodulation_is_the_envelope_of_the_blend() {
+        let (w, h) = (13, 9);
+        let n = w * h;
+        let mut a = vec![0.0f32; 3 * n];
+        let mut s = 12345u32;
+        for v in a.iter_mut() {
+            s = s.wrapping_mul(1664525).wrapping_add(1013904223);
+            let u = (s >> 8) as f32 / (1 << 24) as f32;
+            *v = if u < 0.3 {
+                0.0
+            } else if u < 0.4 {
+                50.0 * u
+            } else {
+                u * u * 0.9
+            };
+        }
+        let mut d = vec![0.0f32; 3 * n];
+        demodulation(&pool(), &a, w, h, &mut d);
+        for c in 0..3 {
+            for y in 0..h {
+                for x in 0..w {
+                    let mut best = 0.0f64;
+                    for qy in 0..h {
+                        for qx in 0..w {
+                            let q = qy * w + qx;
+                            let b = blend([a[q], a[n + q], a[2 * n + q]])[c] as f64;
+                            let dist = (x as i64 - qx as i64).abs() + (y as i64 - qy as i64).abs();
+                            best = best.max(b * (DECAY as f64).powi(dist as i32));
+                        }
+                    }
+                    let got = d[c * n + y * w + x] as f64;
+                    assert!((got - best).abs() <= 1e-6 * best, "({x},{y}) channel {c}: {got} against {best}");
+                }
+            }
+        }
+    }
+
+    /// Neighbours' factors within 1 / DECAY; every factor in (0, 1].
+    #[test]
+    fn factors_are_bounded_and_log_lipschitz() {
+        let (w, h) = (32, 17);
+        let n = w * h;
+        let mut a = vec![0.0f32; 3 * n];
+        for (i, v) in a.iter_mut().enumerate() {
+            *v = match i % 7 {
+                0 => 0.0,
+                1 => 46.0,
+                2 => 1e-20,
+                3 => 0.5,
+                4 => f32::NAN,
+                5 => 0.004,
+                _ => 0.9,
+            };
+        }
+        let mut d = vec![0.0f32; 3 * n];
+        demodulation(&pool(), &a, w, h, &mut d);
+        for c in 0..3 {
+            for y in 0..h {
+                for x in 0..w {
+                    let v = d[c * n + y * w + x];
+                    assert!(v > 0.0 && v <= 1.0, "{v}");
+                    if x + 1 < w {
+                        let r = d[c * n + y * w + x + 1] / v;
+                        assert!((DECAY..=1.0 / DECAY).contains(&r), "{r}");
+                    }
+                    if y + 1 < h {
+                        let r = d[c * n + (y + 1) * w + x] / v;
+                        assert!((DECAY..=1.0 / DECAY).contains(&r), "{r}");
+                    }
+                }
+            }
+        }
+    }
+
+    /// Continuous in the albedo: 1 at 0, the albedo from TAU on (alone).
+    #[test]
+    fn blend_is_continuous_and_ends_at_radiance_and_albedo() {
+        assert_eq!(blend([0.0; 3]), [1.0; 3]);
+        assert_eq!(blend([0.5, 0.5, 0.5]), [0.5; 3]);
+        assert_eq!(blend([0.8, 0.0, 0.4]), [0.8, 0.08, 0.4]);
+        let mut prev = blend([0.0; 3])[0];
+        for i in 1..=2000 {
+            let a = i as f32 * 1e-5;
+            let b = blend([a; 3])[0];
+            assert!((b - prev).abs() < 2e-3, "jump at {a}: {prev} -> {b}");
+            prev = b;
+        }
+    }
+
+    #[test]
+    fn exposure_scales_inversely() {
+        let (w, h) = (40, 23);
+        let rgb: Vec<f32> = (0..3 * w * h).map(|i| ((i * 37) % 101) as f32 / 50.0).collect();
+        let e1 = exposure(&rgb, w, h);
+        for k in [1.0 / 64.0, 0.5, 8.0, 64.0] {
+            let scaled: Vec<f32> = rgb.iter().map(|v| v * k).collect();
+            let ek = exposure(&scaled, w, h);
+            assert!((ek * k / e1 - 1.0).abs() < 1e-5, "k {k}: {ek} {e1}");
+        }
+        assert_eq!(exposure(&vec![0.0; 3 * w * h], w, h), 1.0);
+    }
+}
