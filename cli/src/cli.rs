@@ -16,6 +16,7 @@ use clap::{Args, CommandFactory, FromArgMatches, Parser, Subcommand, ValueEnum};
 use mcdenoise_core::Isa;
 
 use mcdenoise::error::{HostError, Result};
+use mcdenoise::io::output::OutCompression;
 use mcdenoise::methods::afn::Variant;
 use mcdenoise::methods::{MethodKind, Settings};
 use mcdenoise::nn::loss::Loss;
@@ -31,6 +32,13 @@ pub enum Command {
     },
     /// Denoise a sequence.
     Denoise(DenoiseArgs),
+    /// Inspect a frame file.
+    Inspect {
+        /// The file.
+        file: PathBuf,
+        /// Layer and part.
+        selection: mcdenoise::io::names::Selection,
+    },
     /// Score outputs against references.
     Score {
         /// Reference file or directory.
@@ -68,14 +76,10 @@ pub struct DenoiseArgs {
     pub inputs: Vec<PathBuf>,
     /// Output directory.
     pub outdir: PathBuf,
-    /// f16 output.
-    pub half: bool,
-    /// PNG previews.
-    pub png: bool,
+    /// How frames are read and written (`quiet` set from `--quiet` or `--json`).
+    pub sequence: mcdenoise::pipeline::SequenceOptions,
     /// Per-stage times.
     pub timings: bool,
-    /// `--max-memory`, in bytes.
-    pub max_memory: Option<u64>,
     /// Print nothing but warnings and errors.
     pub quiet: bool,
     /// Print one JSON object instead of the text summary.
@@ -256,6 +260,9 @@ enum Sub {
     Train(TrainCli),
     /// Score outputs against references (PSNR, SSIM, relMSE, SMAPE, RMSE, flicker)
     Score(ScoreCli),
+    /// What the loader finds in an EXR file (parts, channels, windows, buffers) and what each method
+    /// will build from it
+    Inspect(InspectCli),
     /// Time and error (against the f64 oracle) of every core operator in every precision and instruction set
     Precision(PrecisionCli),
     /// Print a completion script for a shell
@@ -364,9 +371,19 @@ struct DenoiseCli {
     /// AFN: without the refinement network
     #[arg(long, help_heading = "Learned methods")]
     no_refine: bool,
-    /// Write f16 EXR [default: f32]
-    #[arg(long, help_heading = "Output")]
+    /// Write the colour as f16 [default: the input colour's pixel type]
+    #[arg(long, help_heading = "Output", conflicts_with = "float")]
     half: bool,
+    /// Write the colour as f32 [default: the input colour's pixel type]
+    #[arg(long, help_heading = "Output")]
+    float: bool,
+    /// Output compression
+    #[arg(long, value_enum, value_name = "C", default_value_t = OutCompression::Zip, help_heading = "Output")]
+    compression: OutCompression,
+    /// Copy every input channel the method does not read (and every part of a multi-part file) into
+    /// the output unchanged, beside the denoised colour
+    #[arg(long, help_heading = "Output")]
+    keep_channels: bool,
     /// Also write a PNG preview per frame (clamp(x,0,1)^(1/2.2))
     #[arg(long, help_heading = "Output")]
     png: bool,
@@ -383,6 +400,58 @@ struct DenoiseCli {
     /// [default: the memory available now]
     #[arg(long, value_name = "SIZE", value_parser = size)]
     max_memory: Option<u64>,
+    #[command(flatten)]
+    input: InputCli,
+}
+
+/// Where the buffers are in the input files (`denoise`, `inspect`).
+#[derive(Debug, Args)]
+struct InputCli {
+    /// The layer whose channels to read: `NAME.` before every channel name (Blender's view layer, e.g.
+    /// ViewLayer) [default: none, or the file's one Blender view layer]
+    #[arg(long, value_name = "NAME", help_heading = "Input")]
+    layer: Option<String>,
+    /// The part of a multi-part file whose channels win where two parts have a channel of one name
+    #[arg(long, value_name = "NAME", help_heading = "Input")]
+    part: Option<String>,
+    /// Albedo from its own files: a file, or a directory matched to the frames by file name
+    #[arg(long, value_name = "FILE|DIR", help_heading = "Input")]
+    albedo: Option<PathBuf>,
+    /// World-space normals from their own files (file or directory, as --albedo)
+    #[arg(long, value_name = "FILE|DIR", help_heading = "Input")]
+    normal: Option<PathBuf>,
+    /// Depth from its own files (file or directory, as --albedo)
+    #[arg(long, value_name = "FILE|DIR", help_heading = "Input")]
+    depth: Option<PathBuf>,
+    /// World positions from their own files (file or directory, as --albedo)
+    #[arg(long, value_name = "FILE|DIR", help_heading = "Input")]
+    position: Option<PathBuf>,
+    /// Motion vectors (pixels, previous = current + motion) from their own files (file or directory)
+    #[arg(long, value_name = "FILE|DIR", help_heading = "Input")]
+    motion: Option<PathBuf>,
+    /// The second independent estimate (B.*) from its own files: their R,G,B (file or directory)
+    #[arg(long, value_name = "FILE|DIR", help_heading = "Input")]
+    second: Option<PathBuf>,
+}
+
+impl InputCli {
+    fn selection(&self) -> mcdenoise::io::names::Selection {
+        mcdenoise::io::names::Selection { part: self.part.clone(), layer: self.layer.clone() }
+    }
+    fn aux(&self) -> Vec<mcdenoise::pipeline::AuxInput> {
+        use mcdenoise::io::frame::Buffer;
+        [
+            (Buffer::Albedo, &self.albedo),
+            (Buffer::Normal, &self.normal),
+            (Buffer::Depth, &self.depth),
+            (Buffer::Position, &self.position),
+            (Buffer::Motion, &self.motion),
+            (Buffer::ColorB, &self.second),
+        ]
+        .into_iter()
+        .filter_map(|(buffer, p)| p.clone().map(|path| mcdenoise::pipeline::AuxInput { buffer, path }))
+        .collect()
+    }
 }
 
 #[derive(Debug, Args)]
@@ -463,6 +532,19 @@ struct TrainCli {
 }
 
 #[derive(Debug, Args)]
+struct InspectCli {
+    /// The EXR file
+    #[arg(value_name = "FILE")]
+    file: PathBuf,
+    /// The layer whose channels to read (see denoise --layer)
+    #[arg(long, value_name = "NAME")]
+    layer: Option<String>,
+    /// The part that wins where parts share a channel name (see denoise --part)
+    #[arg(long, value_name = "NAME")]
+    part: Option<String>,
+}
+
+#[derive(Debug, Args)]
 struct ScoreCli {
     /// The reference: a file, or a directory whose files match OUT's by name
     #[arg(short = 'r', long, value_name = "REF")]
@@ -540,15 +622,32 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
         Some(Sub::Denoise(d)) => {
             let mut settings = d.settings.settings();
             settings.refine = !d.no_refine;
+            let half = if d.half {
+                Some(true)
+            } else if d.float {
+                Some(false)
+            } else {
+                None
+            };
+            let sequence = mcdenoise::pipeline::SequenceOptions {
+                write: mcdenoise::io::output::WriteOptions {
+                    half,
+                    compression: d.compression,
+                    keep_channels: d.keep_channels,
+                },
+                png: d.png,
+                max_memory: d.max_memory,
+                quiet: d.quiet || d.json,
+                selection: d.input.selection(),
+                aux: d.input.aux(),
+            };
             Command::Denoise(DenoiseArgs {
                 method: d.method,
                 settings,
                 inputs: d.inputs,
                 outdir: d.outdir,
-                half: d.half,
-                png: d.png,
+                sequence,
                 timings: d.timings,
-                max_memory: d.max_memory,
                 quiet: d.quiet,
                 json: d.json,
             })
@@ -588,6 +687,10 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
             Command::Train(a)
         }
         Some(Sub::Score(s)) => Command::Score { reference: s.reference, output: s.output, json: s.json },
+        Some(Sub::Inspect(i)) => Command::Inspect {
+            file: i.file,
+            selection: mcdenoise::io::names::Selection { part: i.part, layer: i.layer },
+        },
         Some(Sub::Precision(p)) => Command::Precision(mcdenoise_kit::report::ReportArgs {
             frame: p.frame,
             csv: p.csv,

@@ -17,8 +17,7 @@ use mcdenoise::pipeline::{denoise_sequence, RunReport, SequenceOptions};
 /// `--json` prints one JSON object instead, `--quiet` nothing but warnings.
 pub fn denoise_cmd(a: &DenoiseArgs) -> Result<()> {
     let t0 = Instant::now();
-    let opts = SequenceOptions { half: a.half, png: a.png, max_memory: a.max_memory, quiet: a.quiet || a.json };
-    let rep = denoise_sequence(a.method, &a.settings, &a.inputs, &a.outdir, &opts, |_, _, _| {})?;
+    let rep = denoise_sequence(a.method, &a.settings, &a.inputs, &a.outdir, &a.sequence, |_, _, _| {})?;
     let seconds = t0.elapsed().as_secs_f64();
     for w in &rep.warnings {
         eprintln!("warning: {w}");
@@ -33,7 +32,8 @@ pub fn denoise_cmd(a: &DenoiseArgs) -> Result<()> {
     eprintln!("{}; buffers: {}", rep.plan, rep.buffers.join(", "));
     let frames = rep.frames.max(1) as f64;
     println!(
-        "{}: {} frame{} of {}x{} -> {}: {:.1} ms/frame ({:.1} in the kernels), {:.2} s in all ({} threads, {}, {})",
+        "{}: {} frame{} of {}x{} -> {}: {:.1} ms/frame ({:.1} in the kernels, {:.1} reading, {:.1} writing, \
+         overlapped), {:.2} s in all ({} threads, {}, {})",
         a.method.name(),
         rep.frames,
         if rep.frames == 1 { "" } else { "s" },
@@ -42,6 +42,8 @@ pub fn denoise_cmd(a: &DenoiseArgs) -> Result<()> {
         a.outdir.display(),
         seconds * 1e3 / frames,
         ms(rep.timings.total()) / frames,
+        ms(rep.read) / frames,
+        ms(rep.write) / frames,
         seconds,
         a.settings.threads,
         a.settings.precision.name(),
@@ -49,7 +51,86 @@ pub fn denoise_cmd(a: &DenoiseArgs) -> Result<()> {
     );
     if a.timings {
         print_timings(&rep.timings, rep.frames);
+        print_io(&rep);
         print_memory(rep.estimate.as_ref());
+    }
+    Ok(())
+}
+
+/// The I/O lines of `--timings`: reading and writing (in their own
+/// threads, beside the kernels) and what of them the denoiser waited for.
+fn print_io(rep: &RunReport) {
+    let frames = rep.frames.max(1) as f64;
+    for (name, d) in [
+        ("read (reader thread)", rep.read),
+        ("write (writer thread)", rep.write),
+        ("waiting for the reader", rep.read_wait),
+        ("waiting for the writer", rep.write_wait),
+    ] {
+        println!("{:<28} {:>10.2} {:>12.3}", name, ms(d), ms(d) / frames);
+    }
+}
+
+/// `mcdenoise inspect FILE`: the file's parts, channels and windows, the
+/// buffers the loader finds (which channels, whose naming), and for each
+/// method the stages it builds from the frame or why it cannot run.
+pub fn inspect_cmd(file: &Path, selection: &mcdenoise::io::names::Selection) -> Result<()> {
+    use mcdenoise::io::frame::{Buffer, ReadOptions};
+    let opts = ReadOptions { selection: selection.clone(), ..ReadOptions::default() };
+    let reader = Frame::open_with(file, &Limits::default(), &opts)?;
+    let info = reader.info().clone();
+    println!("{}", file.display());
+    for (pi, h) in info.headers.iter().enumerate() {
+        let name = h.own_attributes.layer_name.as_ref().map_or("(unnamed)".to_string(), |n| format!("'{n}'"));
+        let blocks = match h.blocks {
+            exr::meta::BlockDescription::ScanLines => "scan lines".to_string(),
+            exr::meta::BlockDescription::Tiles(t) => {
+                format!("tiles {}x{} ({:?})", t.tile_size.0, t.tile_size.1, t.level_mode)
+            }
+        };
+        let dw = &h.shared_attributes.display_window;
+        println!(
+            "part {pi} {name}: data window {}x{} at ({}, {}), display window {}x{} at ({}, {}), pixel aspect {}, {:?}, {}, {:?}",
+            h.layer_size.0,
+            h.layer_size.1,
+            h.own_attributes.layer_position.0,
+            h.own_attributes.layer_position.1,
+            dw.size.0,
+            dw.size.1,
+            dw.position.0,
+            dw.position.1,
+            h.shared_attributes.pixel_aspect,
+            h.compression,
+            blocks,
+            h.line_order
+        );
+        let chans: Vec<String> = h.channels.list.iter().map(|c| format!("{} ({:?})", c.name, c.sample_type)).collect();
+        println!("  channels: {}", chans.join(", "));
+    }
+    println!("layer: {}", info.layer.as_deref().unwrap_or("(none)"));
+    for b in Buffer::ALL {
+        match &info.found[b.index()] {
+            Some(f) => {
+                let at: Vec<String> =
+                    f.names.iter().zip(&f.channels).map(|(n, (p, _))| format!("{n} [part {p}]")).collect();
+                let conv = match f.convert {
+                    mcdenoise::io::names::Convert::Plain => "",
+                    mcdenoise::io::names::Convert::FlipY => "; y negated (y up)",
+                    mcdenoise::io::names::Convert::FarIsZero => "; 1e9 and beyond read as 0 (no hit)",
+                };
+                println!("{:<16} {} ({} naming{conv})", b.name(), at.join(", "), f.from);
+            }
+            None => println!("{:<16} not found", b.name()),
+        }
+    }
+    let frame = reader.read()?;
+    println!("methods:");
+    for kind in MethodKind::ALL {
+        let settings = Settings::default();
+        match mcdenoise::methods::create(kind, &settings, &frame) {
+            Ok(d) => println!("  {}", d.plan().line(kind.name())),
+            Err(e) => println!("  {}: cannot run: {e}", kind.name()),
+        }
     }
     Ok(())
 }
@@ -78,6 +159,8 @@ fn json_run(a: &DenoiseArgs, rep: &RunReport, seconds: f64) -> String {
         concat!(
             "{{\"method\":{},\"frames\":{},\"width\":{},\"height\":{},\"threads\":{},\"precision\":{},\"isa\":{},",
             "\"seconds\":{:.4},\"ms_per_frame\":{:.4},\"kernel_ms_per_frame\":{:.4},",
+            "\"read_ms_per_frame\":{:.4},\"write_ms_per_frame\":{:.4},\"read_wait_ms_per_frame\":{:.4},",
+            "\"write_wait_ms_per_frame\":{:.4},",
             "\"plan\":{{\"built\":{},\"skipped\":[{}]}},\"buffers\":{},\"timings\":[{}],",
             "\"memory\":{{\"estimate_bytes\":{},\"peak_heap_bytes\":{},\"peak_resident_bytes\":{}}},",
             "\"outputs\":{},\"warnings\":{}}}"
@@ -92,6 +175,10 @@ fn json_run(a: &DenoiseArgs, rep: &RunReport, seconds: f64) -> String {
         seconds,
         seconds * 1e3 / frames,
         ms(rep.timings.total()) / frames,
+        ms(rep.read) / frames,
+        ms(rep.write) / frames,
+        ms(rep.read_wait) / frames,
+        ms(rep.write_wait) / frames,
         strings(&mut rep.stages.built.iter().map(|s| s.to_string())),
         skipped.join(","),
         strings(&mut rep.buffers.iter().map(|s| s.to_string())),

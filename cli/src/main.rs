@@ -49,6 +49,7 @@ fn main() -> ExitCode {
         Ok(Command::Demo { settings }) => run::demo(&settings),
         Ok(Command::Denoise(a)) => run::denoise_cmd(&a),
         Ok(Command::Score { reference, output, json }) => run::score_cmd(&reference, &output, json),
+        Ok(Command::Inspect { file, selection }) => run::inspect_cmd(&file, &selection),
         Ok(Command::Precision(a)) => mcdenoise_kit::report::run(&a).map(|_| ()),
         Ok(Command::Train(a)) => mcdenoise::train::run(&a),
         Err(e) => Err(e),

@@ -17,7 +17,8 @@ pub struct Estimate {
     pub method: Footprint,
     /// Bytes per pixel while an output is written (the output, the PNG preview).
     pub writer: u64,
-    /// Bytes per pixel at the peak: `frame + max(method.peak, method.kept + writer)`.
+    /// Bytes per pixel at the peak: `2 frame + method.peak + writer` (the
+    /// pipeline reads one frame ahead and writes one output behind).
     pub per_pixel: u64,
     /// Bytes not proportional to the pixels: scratch, the largest block the
     /// loader or the writer holds, the baseline.
@@ -53,7 +54,9 @@ impl Estimate {
         let frame = 4 * info.planes() as u64;
         // The PNG's 8-bit image, and the encoder's filtered and compressed copies of it.
         let writer = 12 + if png { 3 + 2 * 3 } else { 0 };
-        let per_pixel = frame + method.peak.max(method.kept + writer);
+        // Pipelined: the frame being denoised and the next one read ahead,
+        // the method at its peak, the previous output being written.
+        let per_pixel = 2 * frame + method.peak + writer;
         let w = info.width as u64;
         // One decoded block and its compressed chunk (each read into a
         // vector that may grow to twice its length), and the read buffer.

@@ -97,32 +97,14 @@ impl Buffer {
         }
     }
 
-    /// Accepted channel-name sets, the contract's names first, then the names
-    /// Mitsuba 3's `aovs` integrator and other renderers write.
-    pub fn aliases(self) -> &'static [&'static [&'static str]] {
-        match self {
-            Buffer::Color => &[&["R", "G", "B"]],
-            Buffer::ColorB => &[&["B.R", "B.G", "B.B"]],
-            Buffer::Albedo => &[&["albedo.R", "albedo.G", "albedo.B"], &["Albedo.R", "Albedo.G", "Albedo.B"]],
-            Buffer::Normal => &[
-                &["normal.X", "normal.Y", "normal.Z"],
-                &["normal.R", "normal.G", "normal.B"],
-                &["sh_normal.X", "sh_normal.Y", "sh_normal.Z"],
-                &["nn.X", "nn.Y", "nn.Z"],
-                &["N.X", "N.Y", "N.Z"],
-            ],
-            Buffer::Depth => &[&["depth.Z"], &["Z"], &["depth.T"], &["depth.Y"], &["depth.R"], &["dd.T"], &["dd.Y"]],
-            Buffer::Position => &[
-                &["position.X", "position.Y", "position.Z"],
-                &["position.R", "position.G", "position.B"],
-                &["pp.X", "pp.Y", "pp.Z"],
-                &["P.X", "P.Y", "P.Z"],
-            ],
-            Buffer::Motion => &[&["motion.X", "motion.Y"], &["motion.R", "motion.G"], &["mv.X", "mv.Y"]],
-        }
+    /// The contract's channel names of the buffer (the first accepted set;
+    /// [`crate::io::names::aliases`] lists every set the loader accepts).
+    pub fn contract_names(self) -> &'static [&'static str] {
+        crate::io::names::aliases(self)[0].names
     }
 
-    fn index(self) -> usize {
+    /// The buffer's place in [`Buffer::ALL`].
+    pub fn index(self) -> usize {
         self as usize
     }
 }
@@ -140,6 +122,23 @@ pub struct Frame {
     planes: [Option<Aligned<f32>>; 7],
     /// Non-finite values replaced on load.
     pub replaced_nonfinite: usize,
+    /// The file's headers and the channels kept for writing them back
+    /// (`None` for a frame made in memory).
+    pub source: Option<std::sync::Arc<Source>>,
+}
+
+/// What a loaded frame keeps of its file for the output: the headers
+/// (windows, attributes, parts, line order) and, when asked to, every
+/// channel the methods do not read, as the file's bytes.
+#[derive(Debug)]
+pub struct Source {
+    /// Every part's header, as read.
+    pub headers: std::sync::Arc<Vec<exr::meta::header::Header>>,
+    /// The part and channel of each colour plane.
+    pub colour: [(usize, usize); 3],
+    /// Per part and channel: its samples (native-endian bytes, `width *
+    /// height` of the channel's type) when kept.
+    pub kept: Vec<Vec<Option<Vec<u8>>>>,
 }
 
 impl Frame {
@@ -151,7 +150,7 @@ impl Frame {
         }
         let mut planes: [Option<Aligned<f32>>; 7] = Default::default();
         planes[0] = Some(Aligned::from_slice(&color));
-        Ok(Frame { path, width, height, planes, replaced_nonfinite: 0 })
+        Ok(Frame { path, width, height, planes, replaced_nonfinite: 0, source: None })
     }
 
     /// Adds or replaces a buffer (planar, `buffer.channels()` planes; kept
@@ -194,7 +193,7 @@ impl Frame {
         self.get(b).ok_or_else(|| HostError::MissingChannel {
             path: self.path.clone(),
             buffer: b.name(),
-            wanted: b.aliases()[0].join(","),
+            wanted: b.contract_names().join(","),
             needed_by: needed_by.to_string(),
         })
     }
@@ -210,11 +209,22 @@ impl Frame {
         Frame::open(path, limits)?.read()
     }
 
+    /// Loads a frame with `opts` (layer, part, buffers to read, channels to
+    /// keep).
+    pub fn load_with(path: &Path, limits: &Limits, opts: &ReadOptions) -> Result<Frame> {
+        Frame::open_with(path, limits, opts)?.read()
+    }
+
     /// Opens a frame file and reads its header only, checked against
     /// `limits`; the pixels are read by [`FrameReader::read`]. Any file the
     /// OS can open works, a device or a FIFO included: a source without a
     /// size is read at most to the header's need (see [`FrameReader`]).
     pub fn open(path: &Path, limits: &Limits) -> Result<FrameReader<'static>> {
+        Frame::open_with(path, limits, &ReadOptions::default())
+    }
+
+    /// [`Frame::open`] with `opts`.
+    pub fn open_with(path: &Path, limits: &Limits, opts: &ReadOptions) -> Result<FrameReader<'static>> {
         let file = std::fs::File::open(path).map_err(|e| HostError::read(path, e))?;
         let meta = file.metadata().map_err(|e| HostError::read(path, e))?;
         if meta.is_dir() {
@@ -223,12 +233,30 @@ impl Frame {
         // A regular file has a size; a device, FIFO or socket has none (its
         // metadata says 0), so only the limits bound it.
         let size = meta.is_file().then_some(meta.len());
-        FrameReader::new(Box::new(file), size, path, limits)
+        FrameReader::new(Box::new(file), size, path, limits, opts)
     }
 
     /// Parses a frame from the bytes of an EXR file (`path` names it in errors).
     pub fn load_bytes(bytes: &[u8], path: &Path, limits: &Limits) -> Result<Frame> {
-        FrameReader::new(Box::new(bytes), Some(bytes.len() as u64), path, limits)?.read()
+        FrameReader::new(Box::new(bytes), Some(bytes.len() as u64), path, limits, &ReadOptions::default())?.read()
+    }
+}
+
+/// How a frame file is read.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ReadOptions {
+    /// The layer and part where the file is ambiguous.
+    pub selection: crate::io::names::Selection,
+    /// The buffers to decode (others are found in the header but not read;
+    /// `None`: every buffer).
+    pub buffers: Option<[bool; 7]>,
+    /// Keep every channel no buffer reads (for writing them back).
+    pub keep_channels: bool,
+}
+
+impl Default for ReadOptions {
+    fn default() -> Self {
+        ReadOptions { selection: Default::default(), buffers: None, keep_channels: false }
     }
 }
 
@@ -252,8 +280,16 @@ pub struct FrameInfo {
     pub width: usize,
     /// Rows.
     pub height: usize,
-    /// The channel names found for each buffer, if the file has it.
-    sets: [Option<&'static [&'static str]>; 7],
+    /// Where each buffer's planes are, if the file has it.
+    pub found: [Option<crate::io::names::Found>; 7],
+    /// The buffers that will be decoded.
+    pub wanted: [bool; 7],
+    /// The layer prefix the buffers were found under.
+    pub layer: Option<String>,
+    /// Every part's header.
+    pub headers: std::sync::Arc<Vec<exr::meta::header::Header>>,
+    /// Keep the channels no buffer reads.
+    pub keep_channels: bool,
     /// Bytes of the largest pixel block once decompressed (the loader holds
     /// one at a time, beside its compressed chunk).
     pub block_bytes: u64,
@@ -273,12 +309,33 @@ pub struct FrameInfo {
 impl FrameInfo {
     /// Whether the file has the buffer.
     pub fn has(&self, b: Buffer) -> bool {
-        self.sets[b.index()].is_some()
+        self.found[b.index()].is_some()
     }
 
-    /// Planes the loaded frame will hold (the buffers the file has).
+    /// Whether the buffer will be decoded (the file has it and it is wanted).
+    pub fn loads(&self, b: Buffer) -> bool {
+        self.has(b) && self.wanted[b.index()]
+    }
+
+    /// Planes the loaded frame will hold (the buffers it loads), and the
+    /// kept channels (in f32 units, rounded up).
     pub fn planes(&self) -> usize {
-        Buffer::ALL.iter().filter(|b| self.has(**b)).map(|b| b.channels()).sum()
+        let buffers: usize = Buffer::ALL.iter().filter(|b| self.loads(**b)).map(|b| b.channels()).sum();
+        let kept = if self.keep_channels {
+            let used: Vec<(usize, usize)> = self.found.iter().flatten().flat_map(|f| f.channels.clone()).collect();
+            let bytes: usize = self
+                .headers
+                .iter()
+                .enumerate()
+                .flat_map(|(pi, h)| h.channels.list.iter().enumerate().map(move |(ci, c)| (pi, ci, c)))
+                .filter(|(pi, ci, _)| !used.contains(&(*pi, *ci)))
+                .map(|(_, _, c)| c.sample_type.bytes_per_sample())
+                .sum();
+            bytes.div_ceil(4)
+        } else {
+            0
+        };
+        buffers + kept
     }
 
     /// `width * height`.
@@ -375,7 +432,13 @@ impl std::fmt::Debug for FrameReader<'_> {
 
 impl<'a> FrameReader<'a> {
     /// Reads and checks the header of `source` (`size`: its length when known).
-    fn new(source: Box<dyn Read + 'a>, size: Option<u64>, path: &Path, limits: &Limits) -> Result<Self> {
+    fn new(
+        source: Box<dyn Read + 'a>,
+        size: Option<u64>,
+        path: &Path,
+        limits: &Limits,
+        opts: &ReadOptions,
+    ) -> Result<Self> {
         if let Some(len) = size.filter(|&l| l > limits.max_file_bytes) {
             return Err(HostError::bad(
                 path,
@@ -401,27 +464,62 @@ impl<'a> FrameReader<'a> {
         })?;
         let meta = reader.meta_data();
         check_headers(path, meta, limits)?;
-        let h0 = &meta.headers[0];
-        let names: Vec<String> = h0.channels.list.iter().map(|c| c.name.to_string()).collect();
-        let mut sets = [None; 7];
-        for b in Buffer::ALL {
-            sets[b.index()] = find_set(path, b, &names)?;
+        let parts: Vec<crate::io::names::PartChannels> = meta
+            .headers
+            .iter()
+            .map(|h| crate::io::names::PartChannels {
+                name: h.own_attributes.layer_name.as_ref().map(|n| n.to_string()),
+                channels: h.channels.list.iter().map(|c| c.name.to_string()).collect(),
+            })
+            .collect();
+        let resolved = crate::io::names::resolve(&parts, &opts.selection, path)?;
+        let wanted = opts.buffers.unwrap_or([true; 7]);
+        let colour_part =
+            resolved.sets[Buffer::Color.index()].as_ref().expect("resolve finds the colour").channels[0].0;
+        let h0 = &meta.headers[colour_part];
+        // Every part a loaded buffer reads must cover the colour's pixels.
+        for b in Buffer::ALL.into_iter().filter(|b| wanted[b.index()]) {
+            let Some(f) = &resolved.sets[b.index()] else { continue };
+            for &(pi, ci) in &f.channels {
+                let h = &meta.headers[pi];
+                if h.layer_size != h0.layer_size || h.own_attributes.layer_position != h0.own_attributes.layer_position
+                {
+                    return Err(HostError::bad(
+                        path,
+                        format!(
+                            "{} ({}) is in a part whose data window differs from the colour's ({}x{} at {},{} against {}x{} at {},{})",
+                            b.name(),
+                            h.channels.list[ci].name,
+                            h.layer_size.0,
+                            h.layer_size.1,
+                            h.own_attributes.layer_position.0,
+                            h.own_attributes.layer_position.1,
+                            h0.layer_size.0,
+                            h0.layer_size.1,
+                            h0.own_attributes.layer_position.0,
+                            h0.own_attributes.layer_position.1
+                        ),
+                    ));
+                }
+                // exr lays out the lines of a block as if every channel were
+                // full resolution, so a subsampled channel would shift the others.
+                if let Some(c) = h.channels.list.iter().find(|c| c.sampling != exr::math::Vec2(1, 1)) {
+                    return Err(HostError::bad(
+                        path,
+                        format!("channel {} is subsampled; only full-resolution channels are supported", c.name),
+                    ));
+                }
+            }
         }
-        if sets[Buffer::Color.index()].is_none() {
-            return Err(HostError::MissingChannel {
-                path: path.to_path_buf(),
-                buffer: "colour",
-                wanted: "R,G,B".into(),
-                needed_by: "every method".into(),
-            });
-        }
-        // exr lays out the lines of a block as if every channel were full
-        // resolution, so any subsampled channel would shift the others.
-        if let Some(c) = h0.channels.list.iter().find(|c| c.sampling != exr::math::Vec2(1, 1)) {
-            return Err(HostError::bad(
-                path,
-                format!("channel {} is subsampled; only full-resolution channels are supported", c.name),
-            ));
+        if opts.keep_channels {
+            for h in meta.headers.iter() {
+                if h.layer_size != h0.layer_size {
+                    return Err(HostError::bad(
+                        path,
+                        "--keep-channels: the parts have different sizes; only files whose parts share one data window can be written back",
+                    ));
+                }
+            }
         }
         // Everything the header lets the file hold after what was read:
         // offset tables, then every chunk at the largest size the reader
@@ -441,7 +539,11 @@ impl<'a> FrameReader<'a> {
             path: path.to_path_buf(),
             width: h0.layer_size.0,
             height: h0.layer_size.1,
-            sets,
+            found: resolved.sets,
+            wanted,
+            layer: resolved.layer,
+            headers: std::sync::Arc::new(meta.headers.to_vec()),
+            keep_channels: opts.keep_channels,
             block_bytes,
             chunk_bytes: chunk_bytes.min(read_limit),
             read_limit,
@@ -456,30 +558,66 @@ impl<'a> FrameReader<'a> {
         &self.info
     }
 
-    /// Reads the pixels into a frame.
+    /// Reads the pixels into a frame (decompressing on the current rayon
+    /// pool).
     pub fn read(self) -> Result<Frame> {
-        self.read_counted().map(|(f, _)| f)
+        self.read_counted_on(None).map(|(f, _)| f)
+    }
+
+    /// Reads the pixels into a frame, decompressing on `pool`'s threads.
+    pub fn read_on(self, pool: &crate::runtime::par::Pool) -> Result<Frame> {
+        self.read_counted_on(Some(pool)).map(|(f, _)| f)
     }
 
     /// Reads the pixels into a frame; also returns the bytes taken from the
     /// source in all (header included).
     pub fn read_counted(self) -> Result<(Frame, u64)> {
+        self.read_counted_on(None)
+    }
+
+    /// [`FrameReader::read_counted`] on `pool` (or the current rayon pool).
+    /// Chunks are read in file order and decompressed in batches on the
+    /// pool's threads, each batch's lines then copied into the planes; only
+    /// the parts holding a wanted buffer (or a kept channel) are
+    /// decompressed, only level 0 of a mip- or rip-mapped tiled file.
+    pub fn read_counted_on(self, pool: Option<&crate::runtime::par::Pool>) -> Result<(Frame, u64)> {
+        use crate::io::names::Convert;
+        use rayon::prelude::*;
+        /// What a channel feeds: a buffer's plane, a kept copy, or both.
+        #[derive(Clone, Copy, Default)]
+        struct Slot {
+            plane: Option<(usize, usize, Convert)>,
+            keep: bool,
+        }
         let FrameReader { info, reader, state } = self;
         let path = info.path.as_path();
         let (w, h) = (info.width, info.height);
         let n = w * h;
-        let channels = reader.headers()[0].channels.clone();
-        // Where each channel of the first layer goes: (buffer, plane).
-        let mut slots: Vec<Option<(usize, usize)>> = vec![None; channels.list.len()];
+        let headers = info.headers.clone();
+        let mut slots: Vec<Vec<Slot>> = headers.iter().map(|h| vec![Slot::default(); h.channels.list.len()]).collect();
         let mut planes: [Option<Aligned<f32>>; 7] = Default::default();
-        for b in Buffer::ALL {
-            let Some(set) = info.sets[b.index()] else { continue };
-            for (plane, name) in set.iter().enumerate() {
-                let i = channels.list.iter().position(|c| c.name == **name).expect("found in the header");
-                slots[i] = Some((b.index(), plane));
+        for b in Buffer::ALL.into_iter().filter(|b| info.loads(*b)) {
+            let f = info.found[b.index()].as_ref().expect("loads() says found");
+            for (plane, &(pi, ci)) in f.channels.iter().enumerate() {
+                slots[pi][ci].plane = Some((b.index(), plane, f.convert));
             }
             planes[b.index()] = Some(Aligned::zeroed(b.channels() * n));
         }
+        let colour = info.found[Buffer::Color.index()].as_ref().expect("the colour is found").channels.clone();
+        let mut kept: Vec<Vec<Option<Vec<u8>>>> = headers.iter().map(|h| vec![None; h.channels.list.len()]).collect();
+        if info.keep_channels {
+            for (pi, hd) in headers.iter().enumerate() {
+                for (ci, c) in hd.channels.list.iter().enumerate() {
+                    // Every channel but the colour, read or not, goes back out
+                    // as its own bytes.
+                    if !colour.contains(&(pi, ci)) {
+                        slots[pi][ci].keep = true;
+                        kept[pi][ci] = Some(vec![0u8; n * c.sample_type.bytes_per_sample()]);
+                    }
+                }
+            }
+        }
+        let parts_used: Vec<bool> = slots.iter().map(|p| p.iter().any(|s| s.plane.is_some() || s.keep)).collect();
         // A read refused at the limit: the header's own bound, or the
         // file-size limit of a stream; a regular file's end is its size,
         // and a file cut short is reported as the decoder sees it.
@@ -499,39 +637,129 @@ impl<'a> FrameReader<'a> {
             _ => not_exr(path, e),
         };
         let mut chunks = reader.all_chunks(false).map_err(err)?;
+        let meta = chunks.meta_data().clone();
+        let batch_len = 4 * pool.map_or_else(rayon::current_num_threads, |p| p.threads()).max(1);
+        let mut batch = Vec::with_capacity(batch_len);
         let mut replaced = 0;
-        while let Some(chunk) = chunks.next() {
-            let chunk = chunk.map_err(err)?;
-            // The first layer's largest level only (as before: other layers
-            // and mip levels are read past, not decoded).
-            let wanted = chunk.layer_index == 0
-                && match &chunk.compressed_block {
+        /// A decoded line bound for a plane or a kept channel.
+        enum Piece {
+            Plane { buffer: usize, at: usize, values: Vec<f32>, replaced: usize },
+            Kept { part: usize, channel: usize, at: usize, bytes: Vec<u8> },
+        }
+        // Level 0's chunks of every part used: once all are read, the rest
+        // of the file (other parts, smaller mip levels) is not needed.
+        let mut missing: Vec<usize> =
+            headers.iter().zip(&parts_used).map(|(hd, &used)| if used { level0_chunks(hd) } else { 0 }).collect();
+        loop {
+            while batch.len() < batch_len && missing.iter().any(|&m| m > 0) {
+                let Some(chunk) = chunks.next() else { break };
+                let chunk = chunk.map_err(err)?;
+                let level0 = match &chunk.compressed_block {
                     exr::block::chunk::CompressedBlock::Tile(t) => t.coordinates.level_index == exr::math::Vec2(0, 0),
                     _ => true,
                 };
-            if !wanted {
-                continue;
-            }
-            let block =
-                exr::block::UncompressedBlock::decompress_chunk(chunk, chunks.meta_data(), false).map_err(err)?;
-            for line in block.lines(&channels) {
-                let loc = line.location;
-                let Some((b, plane)) = slots.get(loc.channel).copied().flatten() else { continue };
-                let (x, y, count) = (loc.position.0, loc.position.1, loc.sample_count);
-                let sample = channels.list[loc.channel].sample_type;
-                if y >= h
-                    || x.checked_add(count).is_none_or(|e| e > w)
-                    || line.value.len() != count * sample.bytes_per_sample()
-                {
-                    return Err(HostError::bad(path, "not a readable OpenEXR file (a block lies outside the image)"));
+                let part = chunk.layer_index;
+                if level0 && parts_used.get(part).copied().unwrap_or(false) {
+                    missing[part] = missing[part].saturating_sub(1);
+                    batch.push(chunk);
                 }
-                let data = planes[b].as_mut().expect("allocated above");
-                let dst = &mut data[plane * n + y * w + x..][..count];
-                replaced += convert_line(sample, line.value, dst);
+            }
+            if batch.is_empty() {
+                break;
+            }
+            let jobs: Vec<exr::block::chunk::Chunk> = std::mem::take(&mut batch);
+            let decode = |jobs: Vec<exr::block::chunk::Chunk>| -> Vec<Result<Vec<Piece>>> {
+                jobs.into_par_iter()
+                    .map(|chunk| -> Result<Vec<Piece>> {
+                        let part = chunk.layer_index;
+                        let block = exr::block::UncompressedBlock::decompress_chunk(chunk, &meta, false)
+                            .map_err(|e| not_exr(path, e))?;
+                        let list = &meta.headers[part].channels;
+                        let mut pieces = Vec::new();
+                        for line in block.lines(list) {
+                            let loc = line.location;
+                            let Some(slot) = slots[part].get(loc.channel).copied() else { continue };
+                            if slot.plane.is_none() && !slot.keep {
+                                continue;
+                            }
+                            let (x, y, count) = (loc.position.0, loc.position.1, loc.sample_count);
+                            let sample = list.list[loc.channel].sample_type;
+                            if y >= h
+                                || x.checked_add(count).is_none_or(|e| e > w)
+                                || line.value.len() != count * sample.bytes_per_sample()
+                            {
+                                return Err(HostError::bad(
+                                    path,
+                                    "not a readable OpenEXR file (a block lies outside the image)",
+                                ));
+                            }
+                            if let Some((buffer, plane, convert)) = slot.plane {
+                                let mut values = vec![0.0f32; count];
+                                let r = convert_line(sample, line.value, &mut values);
+                                match convert {
+                                    Convert::Plain => {}
+                                    Convert::FlipY if plane == 1 => values.iter_mut().for_each(|v| *v = -*v),
+                                    Convert::FlipY => {}
+                                    Convert::FarIsZero => {
+                                        for v in values.iter_mut().filter(|v| **v >= 1e9) {
+                                            *v = 0.0;
+                                        }
+                                    }
+                                }
+                                pieces.push(Piece::Plane { buffer, at: plane * n + y * w + x, values, replaced: r });
+                            }
+                            if slot.keep {
+                                let bytes = line.value.to_vec();
+                                let at = (y * w + x) * sample.bytes_per_sample();
+                                pieces.push(Piece::Kept { part, channel: loc.channel, at, bytes });
+                            }
+                        }
+                        Ok(pieces)
+                    })
+                    .collect()
+            };
+            let decoded = match pool {
+                Some(p) => p.install(|| decode(jobs)),
+                None => decode(jobs),
+            };
+            for pieces in decoded {
+                for piece in pieces? {
+                    match piece {
+                        Piece::Plane { buffer, at, values, replaced: r } => {
+                            let data = planes[buffer].as_mut().expect("allocated above");
+                            data[at..at + values.len()].copy_from_slice(&values);
+                            replaced += r;
+                        }
+                        Piece::Kept { part, channel, at, bytes } => {
+                            let dst = kept[part][channel].as_mut().expect("allocated above");
+                            dst[at..at + bytes.len()].copy_from_slice(&bytes);
+                        }
+                    }
+                }
             }
         }
         let fetched = state.fetched.get();
-        Ok((Frame { path: path.to_path_buf(), width: w, height: h, planes, replaced_nonfinite: replaced }, fetched))
+        let source = Source { headers, colour: [colour[0], colour[1], colour[2]], kept };
+        let frame = Frame {
+            path: path.to_path_buf(),
+            width: w,
+            height: h,
+            planes,
+            replaced_nonfinite: replaced,
+            source: Some(std::sync::Arc::new(source)),
+        };
+        Ok((frame, fetched))
+    }
+}
+
+/// Chunks of a part's full-resolution level: every chunk of a scan-line or
+/// single-level tiled part, the level-0 tiles of a mip- or rip-mapped one.
+fn level0_chunks(h: &exr::meta::header::Header) -> usize {
+    match h.blocks {
+        exr::meta::BlockDescription::Tiles(t) if t.level_mode != exr::meta::attribute::LevelMode::Singular => {
+            h.layer_size.0.div_ceil(t.tile_size.0.max(1)) * h.layer_size.1.div_ceil(t.tile_size.1.max(1))
+        }
+        _ => h.chunk_count,
     }
 }
 
@@ -627,29 +855,6 @@ fn check_header(path: &Path, h: &exr::meta::header::Header, limits: &Limits) -> 
         return Err(HostError::bad(path, "deep OpenEXR data is not supported"));
     }
     Ok(())
-}
-
-/// The first alias set fully present; an error when a set is only partly there.
-fn find_set(path: &Path, b: Buffer, names: &[String]) -> Result<Option<&'static [&'static str]>> {
-    for set in b.aliases() {
-        let present: Vec<&str> = set.iter().copied().filter(|n| names.iter().any(|m| m == n)).collect();
-        if present.len() == set.len() {
-            return Ok(Some(set));
-        }
-        if !present.is_empty() && set.len() > 1 {
-            let missing: Vec<&str> = set.iter().copied().filter(|n| !present.contains(n)).collect();
-            return Err(HostError::bad(
-                path,
-                format!(
-                    "{} channels are incomplete: has {} but not {}",
-                    b.name(),
-                    present.join(","),
-                    missing.join(",")
-                ),
-            ));
-        }
-    }
-    Ok(None)
 }
 
 /// Checks that `f` has the size of the sequence's first frame `first` (`dims`).

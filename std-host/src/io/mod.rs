@@ -7,6 +7,7 @@ use crate::error::{HostError, Result};
 
 pub mod estimate;
 pub mod frame;
+pub mod names;
 pub mod output;
 pub mod sheet;
 

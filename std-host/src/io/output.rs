@@ -1,7 +1,15 @@
-//! Writing results: OpenEXR (`R`, `G`, `B`, f32 or f16, ZIP) and tone-mapped
-//! PNG previews. Every file is written under a temporary name in the target
-//! directory and renamed into place, so an interrupted run never leaves a
-//! half-written file; no output may land on an input.
+//! Writing results: OpenEXR and tone-mapped PNG previews. Every file is
+//! written under a temporary name in the target directory and renamed into
+//! place, so an interrupted run never leaves a half-written file; no output
+//! may land on an input.
+//!
+//! A denoised frame is written as its input was ([`write_frame`]): the
+//! input's headers (data and display windows, pixel aspect, line order,
+//! every attribute, the part names of a multi-part file), the colour under
+//! the input's own channel names and pixel type, and with
+//! [`WriteOptions::keep_channels`] every other channel of every part copied
+//! through unchanged; always in scan lines, in the chosen compression.
+//! Blocks are compressed on the current rayon pool.
 
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
@@ -17,6 +25,210 @@ fn exr_reason(e: exr::error::Error) -> String {
         exr::error::Error::Io(io) => io_reason(&io),
         other => other.to_string(),
     }
+}
+
+/// The output's compression, by the names users know.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum OutCompression {
+    /// No compression (largest files, fastest).
+    None,
+    /// ZIP over 16 scan lines (lossless; the default).
+    Zip,
+    /// ZIP over 1 scan line (lossless).
+    Zips,
+    /// PIZ wavelet (lossless; good on noisy images).
+    Piz,
+    /// Run-length (lossless).
+    Rle,
+    /// PXR24 (lossy for f32: 24-bit floats; lossless for f16).
+    Pxr24,
+    /// DWAA (lossy, 32 scan lines).
+    Dwaa,
+    /// DWAB (lossy, 256 scan lines).
+    Dwab,
+}
+
+impl OutCompression {
+    /// The `exr` crate's compression.
+    pub fn exr(self) -> Compression {
+        match self {
+            OutCompression::None => Compression::Uncompressed,
+            OutCompression::Zip => Compression::ZIP16,
+            OutCompression::Zips => Compression::ZIP1,
+            OutCompression::Piz => Compression::PIZ,
+            OutCompression::Rle => Compression::RLE,
+            OutCompression::Pxr24 => Compression::PXR24,
+            OutCompression::Dwaa => Compression::DWAA(None),
+            OutCompression::Dwab => Compression::DWAB(None),
+        }
+    }
+}
+
+/// How a denoised frame is written.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct WriteOptions {
+    /// The colour's pixel type: `Some(true)` f16, `Some(false)` f32, `None`
+    /// as the input's colour (f32 for a frame made in memory).
+    pub half: Option<bool>,
+    /// The compression.
+    pub compression: OutCompression,
+    /// Copy every channel of the input that the methods do not read (the
+    /// frame must have been read with them kept).
+    pub keep_channels: bool,
+}
+
+impl Default for WriteOptions {
+    fn default() -> Self {
+        WriteOptions { half: None, compression: OutCompression::Zip, keep_channels: false }
+    }
+}
+
+/// Where an output channel's samples come from.
+#[derive(Clone, Copy, Debug)]
+enum Src {
+    /// Plane `c` of the denoised colour.
+    Colour(usize),
+    /// A kept input channel: (part, channel).
+    Kept(usize, usize),
+}
+
+/// Writes the denoised colour `rgb` (3 planes of `width x height`) of a
+/// frame read from `source` as the input file was (see the module); a
+/// frame without a source is written as `R`, `G`, `B`.
+pub fn write_frame(
+    path: &Path,
+    source: Option<&crate::io::frame::Source>,
+    width: usize,
+    height: usize,
+    rgb: &[f32],
+    opts: &WriteOptions,
+) -> Result<()> {
+    use exr::meta::attribute::{ChannelDescription, ChannelList, SampleType};
+    let plane = width * height;
+    if rgb.len() != 3 * plane {
+        return Err(HostError::write(path, "internal: colour is not three planes"));
+    }
+    let Some(src) = source else {
+        let half = opts.half.unwrap_or(false);
+        let sample = if half { SampleType::F16 } else { SampleType::F32 };
+        let header = exr::meta::header::Header::new(
+            Text::default(),
+            (width, height),
+            smallvec::smallvec![
+                ChannelDescription::named("B", sample),
+                ChannelDescription::named("G", sample),
+                ChannelDescription::named("R", sample),
+            ],
+        );
+        let header = exr::meta::header::Header { own_attributes: LayerAttributes::default(), ..header };
+        let srcs = vec![vec![Src::Colour(2), Src::Colour(1), Src::Colour(0)]];
+        return write_parts(path, vec![header], srcs, rgb, None, opts.compression, plane);
+    };
+    let mut headers = Vec::new();
+    let mut sources = Vec::new();
+    for (pi, h) in src.headers.iter().enumerate() {
+        let mut chans: Vec<(ChannelDescription, Src)> = Vec::new();
+        for (ci, c) in h.channels.list.iter().enumerate() {
+            if let Some(k) = src.colour.iter().position(|&x| x == (pi, ci)) {
+                let sample = match opts.half {
+                    Some(true) => SampleType::F16,
+                    Some(false) => SampleType::F32,
+                    None if c.sample_type == SampleType::U32 => SampleType::F32,
+                    None => c.sample_type,
+                };
+                chans.push((ChannelDescription { sample_type: sample, ..c.clone() }, Src::Colour(k)));
+            } else if opts.keep_channels && src.kept[pi][ci].is_some() {
+                chans.push((c.clone(), Src::Kept(pi, ci)));
+            }
+        }
+        if chans.is_empty() {
+            continue;
+        }
+        chans.sort_by(|a, b| a.0.name.cmp(&b.0.name));
+        let line_order = match h.line_order {
+            LineOrder::Decreasing => LineOrder::Decreasing,
+            _ => LineOrder::Increasing,
+        };
+        let list = ChannelList::new(chans.iter().map(|c| c.0.clone()).collect());
+        let header = exr::meta::header::Header {
+            channels: list,
+            deep: false,
+            deep_data_version: None,
+            max_samples_per_pixel: None,
+            ..h.clone()
+        }
+        .with_encoding(opts.compression.exr(), exr::meta::BlockDescription::ScanLines, line_order);
+        headers.push(header);
+        sources.push(chans.into_iter().map(|c| c.1).collect());
+    }
+    write_parts(path, headers, sources, rgb, Some(src), opts.compression, plane)
+}
+
+/// Writes `headers` (one part each) with each channel's samples from
+/// `srcs`, compressing batches of blocks in parallel.
+fn write_parts(
+    path: &Path,
+    headers: Vec<exr::meta::header::Header>,
+    srcs: Vec<Vec<Src>>,
+    rgb: &[f32],
+    source: Option<&crate::io::frame::Source>,
+    _compression: OutCompression,
+    plane: usize,
+) -> Result<()> {
+    use exr::block::writer::ChunksWriter as _;
+    use exr::meta::attribute::SampleType;
+    use rayon::prelude::*;
+    let headers: exr::meta::Headers = headers.into_iter().collect();
+    let width = headers.first().map_or(0, |h| h.layer_size.0);
+    atomic_write_file(path, |out| {
+        let written = exr::block::write(out, headers, true, |meta, chunks| {
+            let order: Vec<(usize, exr::block::BlockIndex)> =
+                exr::block::enumerate_ordered_header_block_indices(&meta.headers).collect();
+            let batch = 4 * rayon::current_num_threads().max(1);
+            for jobs in order.chunks(batch) {
+                let done: Vec<exr::error::Result<(usize, exr::block::chunk::Chunk)>> = jobs
+                    .par_iter()
+                    .map(|&(index, block)| {
+                        let part = block.layer;
+                        let channels = &meta.headers[part].channels;
+                        let mut tmp = Vec::new();
+                        let ub = exr::block::UncompressedBlock::from_lines(channels, block, |line| {
+                            let loc = line.location;
+                            let (x, y, count) = (loc.position.0, loc.position.1, loc.sample_count);
+                            let at = y * width + x;
+                            let done = match srcs[part][loc.channel] {
+                                Src::Colour(c) => {
+                                    let v = &rgb[c * plane + at..c * plane + at + count];
+                                    match channels.list[loc.channel].sample_type {
+                                        SampleType::F16 => {
+                                            tmp.clear();
+                                            tmp.extend(v.iter().map(|&x| f16::from_f32(x)));
+                                            line.write_samples_from_slice(&tmp)
+                                        }
+                                        _ => line.write_samples_from_slice(v),
+                                    }
+                                }
+                                Src::Kept(pi, ci) => {
+                                    let kept = source.and_then(|s| s.kept[pi][ci].as_deref()).expect("a kept channel");
+                                    let bytes = channels.list[loc.channel].sample_type.bytes_per_sample();
+                                    line.value.copy_from_slice(&kept[at * bytes..(at + count) * bytes]);
+                                    Ok(())
+                                }
+                            };
+                            debug_assert!(done.is_ok(), "a line holds its samples");
+                        });
+                        Ok((index, ub.compress_to_chunk(&meta.headers)?))
+                    })
+                    .collect();
+                for d in done {
+                    let (index, chunk) = d?;
+                    chunks.write_chunk(index, chunk)?;
+                }
+            }
+            Ok(())
+        });
+        written.map_err(exr_reason)
+    })
 }
 
 /// Writes three planes as `R`, `G`, `B` (f16 when `half`).

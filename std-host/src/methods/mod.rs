@@ -72,6 +72,30 @@ impl MethodKind {
         }
     }
 
+    /// The buffers the method reads (in [`Buffer::ALL`](crate::io::frame::Buffer::ALL)
+    /// order); the loader decodes no other.
+    pub fn reads(self) -> [bool; 7] {
+        use crate::io::frame::Buffer as B;
+        let set = |bs: &[B]| {
+            let mut m = [false; 7];
+            for b in bs {
+                m[*b as usize] = true;
+            }
+            m
+        };
+        match self {
+            MethodKind::None => set(&[B::Color]),
+            MethodKind::Ta => set(&[B::Color, B::Normal, B::Depth, B::Position, B::Motion]),
+            MethodKind::Atrous | MethodKind::SureAtrous => {
+                set(&[B::Color, B::ColorB, B::Albedo, B::Normal, B::Depth, B::Position])
+            }
+            MethodKind::Wskp | MethodKind::Afn => {
+                set(&[B::Color, B::Albedo, B::Normal, B::Depth, B::Position, B::Motion])
+            }
+            MethodKind::Cross => set(&[B::Color, B::ColorB, B::Albedo, B::Normal, B::Position, B::Motion]),
+        }
+    }
+
     /// Parses a command-line name.
     pub fn parse(s: &str) -> Result<MethodKind> {
         MethodKind::ALL.into_iter().find(|m| m.name() == s).ok_or_else(|| {

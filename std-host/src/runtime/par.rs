@@ -9,9 +9,11 @@
 use mcdenoise_core::{Result as CoreResult, ViewMut};
 use rayon::prelude::*;
 
-/// A thread pool of a fixed size.
+/// A thread pool of a fixed size. Cloning shares the pool (the reader and
+/// writer of a pipelined sequence run on the denoiser's threads).
+#[derive(Clone)]
 pub struct Pool {
-    pool: rayon::ThreadPool,
+    pool: std::sync::Arc<rayon::ThreadPool>,
     threads: usize,
 }
 
@@ -52,7 +54,7 @@ impl Pool {
             .num_threads(threads)
             .build()
             .map_err(|e| format!("cannot start {threads} threads: {e}"))?;
-        Ok(Pool { pool, threads })
+        Ok(Pool { pool: std::sync::Arc::new(pool), threads })
     }
 
     /// Threads in the pool.
