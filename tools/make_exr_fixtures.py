@@ -8,9 +8,9 @@ buffer) in the layouts production pipelines write.
 
   plain/       one scan-line part, the input contract's names (the reference)
   multipart/   R,G,B in part 'rgba', every other buffer in part 'aovs'
-  clash/       parts 'beauty' and 'albedo' both holding R,G,B (needs --part
-               beauty; the albedo part answers to albedo.R/G/B), normals and
-               the rest in 'aovs'
+  clash/       parts 'beauty' and 'albedo' both holding R,G,B (the first
+               part's are the colour unless --part says; the albedo part
+               answers to albedo.R/G/B), normals and the rest in 'aovs'
   blender/     Blender's multilayer naming under the view layer 'ViewLayer':
                Combined.R/G/B/A, Denoising Albedo, Normal, Position, Depth
                (1e10 where nothing is hit), Vector (X, Y: motion to the

@@ -384,6 +384,11 @@ struct DenoiseCli {
     /// the output unchanged, beside the denoised colour
     #[arg(long, help_heading = "Output")]
     keep_channels: bool,
+    /// Read, denoise and write one frame at a time instead of reading the next frame and writing the last
+    /// output while a frame is denoised (less memory; by default the overlap is used when its memory
+    /// estimate fits)
+    #[arg(long, help_heading = "Output")]
+    no_pipeline: bool,
     /// Also write a PNG preview per frame (clamp(x,0,1)^(1/2.2))
     #[arg(long, help_heading = "Output")]
     png: bool,
@@ -640,6 +645,7 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
                 quiet: d.quiet || d.json,
                 selection: d.input.selection(),
                 aux: d.input.aux(),
+                pipeline: if d.no_pipeline { Some(false) } else { None },
             };
             Command::Denoise(DenoiseArgs {
                 method: d.method,

@@ -118,7 +118,12 @@ pub fn inspect_cmd(file: &Path, selection: &mcdenoise::io::names::Selection) -> 
                     mcdenoise::io::names::Convert::FlipY => "; y negated (y up)",
                     mcdenoise::io::names::Convert::FarIsZero => "; 1e9 and beyond read as 0 (no hit)",
                 };
-                println!("{:<16} {} ({} naming{conv})", b.name(), at.join(", "), f.from);
+                let also = if f.also_in.is_empty() {
+                    String::new()
+                } else {
+                    format!("; also in {} (--part chooses)", f.also_in.join(", "))
+                };
+                println!("{:<16} {} ({} naming{conv}{also})", b.name(), at.join(", "), f.from);
             }
             None => println!("{:<16} not found", b.name()),
         }

@@ -292,7 +292,7 @@ fn every_command_has_help() {
     for (cmd, needles) in [
         ("demo", &["[default: f32]", "f16-arith"][..]),
         ("denoise", &["--method <METHOD>", "sure-atrous", "Dammertz", "[default: 6]", "--quiet", "--json"][..]),
-        ("train", &["[default: smape]", "relmse", "1spp-only", "[default: 128]"][..]),
+        ("train", &["[default: relmse-n2n]", "relmse", "1spp-only", "[default: 128]"][..]),
         ("score", &["--reference <REF>", "<OUT>"][..]),
         ("precision", &["[default: 1280x720]", "--only"][..]),
         ("completions", &["bash", "zsh", "fish"][..]),
@@ -448,7 +448,7 @@ fn parse_is_a_function_of_the_arguments() {
             assert_eq!(d.settings.precision, mcdenoise::runtime::precision::PrecisionKind::Fixed);
             assert_eq!((d.settings.threads, d.settings.refine, d.settings.layers), (3, false, 6));
             assert_eq!(d.inputs.len(), 2);
-            assert_eq!(d.max_memory, Some(1 << 30));
+            assert_eq!(d.sequence.max_memory, Some(1 << 30));
             assert!(!d.quiet && !d.json);
         }
         other => panic!("{other:?}"),

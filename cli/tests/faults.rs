@@ -80,7 +80,8 @@ fn denoise(inputs: &[&Path], out: &Path, extra: &[&str]) -> Command {
 
 fn denoise_with(binary: &Path, inputs: &[&Path], out: &Path, extra: &[&str]) -> Command {
     let mut c = Command::new(binary);
-    c.args(["denoise", "--method", "none", "--threads", "2"]).args(extra);
+    // f32 outputs, whatever the inputs hold: the sizes above assume them.
+    c.args(["denoise", "--method", "none", "--threads", "2", "--float"]).args(extra);
     c.args(inputs).arg("-o").arg(out);
     c
 }

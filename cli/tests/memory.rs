@@ -18,9 +18,13 @@ const PRECISIONS: [&str; 4] = ["f32", "f16", "f16-arith", "fixed"];
 #[test]
 fn estimates_bound_the_counted_heap() {
     let t = tempfile::tempdir().unwrap();
-    let (w, h1, h2) = (384, 64, 320);
+    // Both heights at least 8 ZIP blocks of 16 rows: the loader and the
+    // writer work in batches of 4 blocks a thread, a fixed amount that
+    // must not show up as bytes per pixel.
+    let (w, h1, h2) = (384, 128, 384);
     let sets: [(&str, &[&str]); 2] = [("rgb", &["R", "G", "B"]), ("full", &ALL_CHANNELS)];
     let mut rows = Vec::new();
+    let mut bad = Vec::new();
     for (set, channels) in sets {
         let dirs: Vec<_> = [h1, h2]
             .iter()
@@ -41,7 +45,19 @@ fn estimates_bound_the_counted_heap() {
                 let mut got = Vec::new();
                 for d in &dirs {
                     let out = t.path().join("out");
-                    let mut args = vec!["denoise", "--method", method, "--precision", precision, "--threads", "2"];
+                    // One frame at a time: the pipeline's read-ahead and
+                    // write-behind overlap by timing, so the estimate is
+                    // held to the heap here and bounds it below.
+                    let mut args = vec![
+                        "denoise",
+                        "--method",
+                        method,
+                        "--precision",
+                        precision,
+                        "--threads",
+                        "2",
+                        "--no-pipeline",
+                    ];
                     // The writer's share: PNG previews and f16 output with every buffer.
                     if set == "full" {
                         args.extend(["--png", "--half"]);
@@ -65,12 +81,34 @@ fn estimates_bound_the_counted_heap() {
                 let dpx = (w * (h2 - h1)) as f64;
                 let per_px = (heap2 as f64 - heap1 as f64) / dpx;
                 rows.push(format!("{what:<28} estimate {pp:>4} B/px, counted {per_px:>6.1} B/px"));
-                assert!(per_px <= pp as f64 + 0.5, "{what}: {per_px:.1} bytes per pixel over the estimate {pp}");
-                assert!(per_px >= 0.85 * pp as f64, "{what}: {per_px:.1} bytes per pixel, estimate {pp} is loose");
+                // Decompression and compression run in parallel batches, whose
+                // allocations interleave by timing: a few bytes of noise.
+                if per_px > pp as f64 + 3.0 {
+                    bad.push(format!("{what}: {per_px:.1} bytes per pixel over the estimate {pp}"));
+                }
+                if per_px < 0.8 * pp as f64 {
+                    bad.push(format!("{what}: {per_px:.1} bytes per pixel, estimate {pp} is loose"));
+                }
+                // Pipelined (the default), the estimate bounds the heap.
+                let out = t.path().join("out-pipelined");
+                let mut args = vec!["denoise", "--method", method, "--precision", precision, "--threads", "2"];
+                if set == "full" {
+                    args.extend(["--png", "--half"]);
+                }
+                let wf = weights_for(t.path(), method);
+                if let Some(wf) = &wf {
+                    args.extend(["--weights", wf.to_str().unwrap()]);
+                }
+                args.extend(["--timings", dirs[1].to_str().unwrap(), "-o", out.to_str().unwrap()]);
+                let r = run_limited(&args, &[]);
+                assert_eq!(r.code, Some(0), "{what} pipelined: {}", r.stderr);
+                let (_, est, heap) = memory_line(&r.stdout).unwrap();
+                assert!(heap <= est, "{what} pipelined: heap {heap} over the estimate {est}");
             }
         }
     }
     eprintln!("{}", rows.join("\n"));
+    assert!(bad.is_empty(), "{bad:#?}");
 }
 
 /// Initial (untrained) weights of a learned method, written into `dir`.
@@ -86,7 +124,7 @@ fn weights_for(dir: &std::path::Path, method: &str) -> Option<std::path::PathBuf
                 &params,
                 mcdenoise::nn::weights::Form::Branches,
                 "wskp",
-                &[("layers", "6".into())],
+                &[("layers", "6".into()), ("transform", mcdenoise::methods::features::TRANSFORM.into())],
             )
             .unwrap();
         }

@@ -18,7 +18,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crate::error::{HostError, Result};
-use crate::io::estimate::Estimate;
+use crate::io::estimate::{Estimate, IoShape};
 use crate::io::frame::{check_same_size, check_same_size_as, Buffer, Frame, Limits, ReadOptions, Source};
 use crate::io::output::WriteOptions;
 use crate::io::{list_inputs, output};
@@ -97,11 +97,17 @@ pub struct SequenceOptions {
     pub selection: crate::io::names::Selection,
     /// Buffers in files of their own.
     pub aux: Vec<AuxInput>,
+    /// Read one frame ahead and write one output behind while a frame is
+    /// denoised: `Some(true)` always, `Some(false)` never (one frame at a
+    /// time: less memory), `None` when the estimate of it fits the memory
+    /// budget.
+    pub pipeline: Option<bool>,
 }
 
 /// A frame read, with what its header check found.
 struct Read {
     frame: Frame,
+    info: crate::io::frame::FrameInfo,
     estimate: Estimate,
     seconds: Duration,
 }
@@ -116,7 +122,9 @@ struct Job {
 
 /// Reads frame `path`: its header checked for size and memory before any
 /// pixel, then its pixels (decompressed on `pool`), then the buffers of
-/// `aux` from their own files.
+/// `aux` from their own files. `pipelined`: the run's mode (`None` for the
+/// first frame: pipelined when that fits the budget); the mode taken is in
+/// the returned estimate.
 #[allow(clippy::too_many_arguments)]
 fn read_frame(
     path: &Path,
@@ -127,6 +135,7 @@ fn read_frame(
     opts: &SequenceOptions,
     budget: &Budget,
     pool: &Pool,
+    pipelined: Option<bool>,
 ) -> Result<Read> {
     let t0 = Instant::now();
     let read_opts = ReadOptions {
@@ -139,8 +148,34 @@ fn read_frame(
     if let Some((first, dims)) = first {
         check_same_size_as(first, dims, path, (info.width, info.height))?;
     }
-    let est = Estimate::new(info, methods::footprint(method, settings, info), opts.write.half == Some(true), opts.png);
-    est.check(budget, info, &format!("{} in {}", method.name(), settings.precision.name()))?;
+    let footprint = methods::footprint(method, settings, info);
+    let shape = |pipelined| IoShape {
+        half: opts.write.half == Some(true),
+        png: opts.png,
+        pipelined,
+        threads: settings.threads,
+        rows_per_block: opts.write.compression.exr().scan_lines_per_block(),
+    };
+    let work = format!("{} in {}", method.name(), settings.precision.name());
+    let est = match pipelined.or(opts.pipeline) {
+        Some(p) => {
+            let e = Estimate::new(info, footprint, &shape(p));
+            e.check(budget, info, &work)?;
+            e
+        }
+        None => {
+            let e = Estimate::new(info, footprint, &shape(true));
+            match e.check(budget, info, &work) {
+                Ok(()) => e,
+                Err(_) => {
+                    let e = Estimate::new(info, footprint, &shape(false));
+                    e.check(budget, info, &work)?;
+                    e
+                }
+            }
+        }
+    };
+    let info = info.clone();
     let mut frame = reader.read_on(pool)?;
     for aux in &opts.aux {
         let file = aux.file_for(path);
@@ -161,7 +196,7 @@ fn read_frame(
         }
         frame.set(aux.buffer, other.data)?;
     }
-    Ok(Read { frame, estimate: est, seconds: t0.elapsed() })
+    Ok(Read { frame, info, estimate: est, seconds: t0.elapsed() })
 }
 
 /// A buffer from a file of its own: the buffer's own channel names, or the
@@ -236,18 +271,14 @@ pub fn denoise_sequence(
     let budget = Budget::detect(opts.max_memory, settings.threads);
     let mut report = RunReport::default();
     let mut ctx = methods::context(settings)?;
-    let first = read_frame(&files[0], &limits, None, method, settings, opts, &budget, &ctx.pool)?;
+    let first = read_frame(&files[0], &limits, None, method, settings, opts, &budget, &ctx.pool, None)?;
+    let pipelined = first.estimate.pipelined;
     let mut den = methods::create(method, settings, &first.frame)?;
     report.plan = den.plan().line(den.name());
     report.stages = den.plan().clone();
     report.buffers = {
-        let info = Frame::open_with(
-            &files[0],
-            &limits,
-            &ReadOptions { selection: opts.selection.clone(), ..Default::default() },
-        )?;
         let mut b: Vec<&'static str> =
-            Buffer::ALL.into_iter().filter(|b| info.info().has(*b)).map(|b| b.name()).collect();
+            Buffer::ALL.into_iter().filter(|b| first.info.has(*b)).map(|b| b.name()).collect();
         b.extend(opts.aux.iter().map(|a| a.buffer.name()));
         b
     };
@@ -264,88 +295,127 @@ pub fn denoise_sequence(
     });
     let dims = report.size;
     let pool = ctx.pool.clone();
-    let (frame_tx, frame_rx) = sync_channel::<Result<Read>>(0);
-    let (job_tx, job_rx) = sync_channel::<Job>(0);
-    let result = std::thread::scope(|scope| -> Result<()> {
-        // The reader: frames 1.. in order, one ahead of the denoiser.
-        let reader = scope.spawn(|| {
-            for path in &files[1..] {
-                let r = read_frame(path, &limits, Some((&files[0], dims)), method, settings, opts, &budget, &pool);
-                let stop = r.is_err();
-                if frame_tx.send(r).is_err() || stop {
-                    break;
-                }
-            }
-            drop(frame_tx);
-        });
-        // The writer: outputs in order, one behind the denoiser.
-        let writer = scope.spawn(|| writer_loop(job_rx, &outputs, &pngs, opts, &pool));
-        let mut read_time = first.seconds;
-        let mut next = Some(Ok(first));
-        let mut waits = (Duration::ZERO, Duration::ZERO);
-        let mut job_tx: Option<SyncSender<Job>> = Some(job_tx);
-        let run = (|| -> Result<()> {
-            for (i, path) in files.iter().enumerate() {
+    let read_next = |path: &Path| {
+        read_frame(path, &limits, Some((&files[0], dims)), method, settings, opts, &budget, &pool, Some(pipelined))
+    };
+    // One frame: checks, warnings, the denoiser; returns the job to write.
+    let mut step = |i: usize, r: Read, report: &mut RunReport| -> Result<Job> {
+        let f = r.frame;
+        check_same_size(&files[0], dims, &f)?;
+        if report.estimate.is_none_or(|e| e.bytes() < r.estimate.bytes()) {
+            report.estimate = Some(r.estimate);
+        }
+        if f.replaced_nonfinite > 0 {
+            report.warnings.push(format!(
+                "{}: {} non-finite values replaced (NaN by 0, inf by ±1e20)",
+                files[i].display(),
+                f.replaced_nonfinite
+            ));
+        }
+        let out = den.denoise(&f, &mut ctx, &mut report.timings)?;
+        on_frame(i, &out, &f);
+        Ok(Job { index: i, out, source: f.source.clone(), size: (f.width, f.height) })
+    };
+    report.read = first.seconds;
+    let result = if !pipelined {
+        // One frame at a time (the pipelined estimate did not fit).
+        let mut next = Some(first);
+        (|| -> Result<()> {
+            for i in 0..files.len() {
                 let r = match next.take() {
                     Some(r) => r,
                     None => {
-                        let t = Instant::now();
-                        let r = frame_rx
-                            .recv()
-                            .map_err(|_| HostError::bad(path, "the reader stopped before this frame"))?;
-                        waits.0 += t.elapsed();
+                        let r = read_next(&files[i])?;
+                        report.read += r.seconds;
                         r
                     }
-                }?;
-                read_time += if i > 0 { r.seconds } else { Duration::ZERO };
-                let f = r.frame;
-                check_same_size(&files[0], dims, &f)?;
-                if report.estimate.is_none_or(|e| e.bytes() < r.estimate.bytes()) {
-                    report.estimate = Some(r.estimate);
-                }
-                if f.replaced_nonfinite > 0 {
-                    report.warnings.push(format!(
-                        "{}: {} non-finite values replaced (NaN by 0, inf by ±1e20)",
-                        path.display(),
-                        f.replaced_nonfinite
-                    ));
-                }
-                let out = den.denoise(&f, &mut ctx, &mut report.timings)?;
-                on_frame(i, &out, &f);
-                let job = Job { index: i, out, source: f.source.clone(), size: (f.width, f.height) };
-                drop(f);
+                };
+                let job = step(i, r, &mut report)?;
                 let t = Instant::now();
-                let sent = job_tx.as_ref().expect("open until the end").send(job);
-                waits.1 += t.elapsed();
-                if sent.is_err() {
-                    // The writer stopped on an error: it reports it below.
-                    break;
-                }
+                write_job(&job, &outputs, &pngs, opts, &pool)?;
+                report.write += t.elapsed();
                 report.frames += 1;
                 if let Some(b) = &bar {
                     b.inc(1);
                 }
             }
             Ok(())
-        })();
-        // Closing the channels stops both threads (a reader blocked on a
-        // send sees the receiver gone).
-        job_tx.take();
-        drop(frame_rx);
-        let written = writer.join().map_err(|_| HostError::Usage("internal: the writer thread panicked".into()))?;
-        reader.join().map_err(|_| HostError::Usage("internal: the reader thread panicked".into()))?;
-        report.read = read_time;
-        (report.read_wait, report.write_wait) = waits;
-        run?;
-        report.write = written?;
-        Ok(())
-    });
+        })()
+    } else {
+        let (frame_tx, frame_rx) = sync_channel::<Result<Read>>(0);
+        let (job_tx, job_rx) = sync_channel::<Job>(0);
+        std::thread::scope(|scope| -> Result<()> {
+            // The reader: frames 1.. in order, one ahead of the denoiser.
+            let reader = scope.spawn(|| {
+                for path in &files[1..] {
+                    let r = read_next(path);
+                    let stop = r.is_err();
+                    if frame_tx.send(r).is_err() || stop {
+                        break;
+                    }
+                }
+                drop(frame_tx);
+            });
+            // The writer: outputs in order, one behind the denoiser.
+            let writer = scope.spawn(|| writer_loop(job_rx, &outputs, &pngs, opts, &pool));
+            let mut next = Some(first);
+            let mut job_tx: Option<SyncSender<Job>> = Some(job_tx);
+            let run = (|| -> Result<()> {
+                for i in 0..files.len() {
+                    let r = match next.take() {
+                        Some(r) => r,
+                        None => {
+                            let t = Instant::now();
+                            let r = frame_rx
+                                .recv()
+                                .map_err(|_| HostError::bad(&files[i], "the reader stopped before this frame"))??;
+                            report.read_wait += t.elapsed();
+                            report.read += r.seconds;
+                            r
+                        }
+                    };
+                    let job = step(i, r, &mut report)?;
+                    let t = Instant::now();
+                    let sent = job_tx.as_ref().expect("open until the end").send(job);
+                    report.write_wait += t.elapsed();
+                    if sent.is_err() {
+                        // The writer stopped on an error: it reports it below.
+                        break;
+                    }
+                    report.frames += 1;
+                    if let Some(b) = &bar {
+                        b.inc(1);
+                    }
+                }
+                Ok(())
+            })();
+            // Closing the channels stops both threads (a reader blocked on
+            // a send sees the receiver gone).
+            job_tx.take();
+            drop(frame_rx);
+            let written = writer.join().map_err(|_| HostError::Usage("internal: the writer thread panicked".into()))?;
+            reader.join().map_err(|_| HostError::Usage("internal: the reader thread panicked".into()))?;
+            run?;
+            report.write = written?;
+            Ok(())
+        })
+    };
     if let Some(b) = bar {
         b.finish_and_clear();
     }
     result?;
     report.outputs = outputs;
     Ok(report)
+}
+
+/// Writes one output (and its PNG).
+fn write_job(job: &Job, outputs: &[PathBuf], pngs: &[PathBuf], opts: &SequenceOptions, pool: &Pool) -> Result<()> {
+    let (w, h) = job.size;
+    pool.install(|| output::write_frame(&outputs[job.index], job.source.as_deref(), w, h, &job.out, &opts.write))?;
+    if opts.png {
+        output::write_png_preview(&pngs[job.index], w, h, &job.out)?;
+    }
+    Ok(())
 }
 
 /// Writes every job's output (and PNG) in order; returns the time spent.
@@ -359,11 +429,7 @@ fn writer_loop(
     let mut spent = Duration::ZERO;
     for job in jobs {
         let t = Instant::now();
-        let (w, h) = job.size;
-        pool.install(|| output::write_frame(&outputs[job.index], job.source.as_deref(), w, h, &job.out, &opts.write))?;
-        if opts.png {
-            output::write_png_preview(&pngs[job.index], w, h, &job.out)?;
-        }
+        write_job(&job, outputs, pngs, opts, pool)?;
         spent += t.elapsed();
     }
     Ok(spent)

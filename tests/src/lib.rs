@@ -147,7 +147,15 @@ pub fn wskp_test_weights(layers: usize) -> std::path::PathBuf {
         let net = mcdenoise::methods::wskp::net(layers).unwrap();
         // Small weights: logits of a few nats, every window carrying weight.
         let params: Vec<f32> = net.init(7).iter().map(|v| v * 0.3).collect();
-        save_params(&path, &net, &params, Form::Branches, "wskp", &[("layers", layers.to_string())]).unwrap();
+        save_params(
+            &path,
+            &net,
+            &params,
+            Form::Branches,
+            "wskp",
+            &[("layers", layers.to_string()), ("transform", mcdenoise::methods::features::TRANSFORM.into())],
+        )
+        .unwrap();
     }
     path
 }

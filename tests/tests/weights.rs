@@ -21,8 +21,24 @@ fn branches_and_merged_files_load_to_the_same_network() {
     let net = wskp::net(3).unwrap();
     let params = net.init(5);
     let (pb, pm) = (tmp("b.safetensors"), tmp("m.safetensors"));
-    save_params(&pb, &net, &params, Form::Branches, "wskp", &[("layers", "3".into())]).unwrap();
-    save_params(&pm, &net, &params, Form::Merged, "wskp", &[("layers", "3".into())]).unwrap();
+    save_params(
+        &pb,
+        &net,
+        &params,
+        Form::Branches,
+        "wskp",
+        &[("layers", "3".into()), ("transform", mcdenoise::methods::features::TRANSFORM.into())],
+    )
+    .unwrap();
+    save_params(
+        &pm,
+        &net,
+        &params,
+        Form::Merged,
+        "wskp",
+        &[("layers", "3".into()), ("transform", mcdenoise::methods::features::TRANSFORM.into())],
+    )
+    .unwrap();
     let back = File::read(&pb).unwrap().params(&net, "wskp", &[]).unwrap();
     assert_eq!(back, params, "branches round trip");
     let merged = File::read(&pm).unwrap().params(&net, "wskp", &[]).unwrap();
@@ -139,7 +155,15 @@ fn bad_weight_files_name_the_file_and_the_tensor() {
     // A 6-layer file for the 3-layer network: the first missing tensor named.
     let net6 = wskp::net(6).unwrap();
     let path = tmp("six.safetensors");
-    save_params(&path, &net6, &net6.init(1), Form::Branches, "wskp", &[("layers", "6".into())]).unwrap();
+    save_params(
+        &path,
+        &net6,
+        &net6.init(1),
+        Form::Branches,
+        "wskp",
+        &[("layers", "6".into()), ("transform", mcdenoise::methods::features::TRANSFORM.into())],
+    )
+    .unwrap();
     expect_err(
         std::fs::read(&path).unwrap(),
         "tensor layers.2.conv5.weight has shape [14, 14, 5, 5], expected [12, 14, 5, 5]",
@@ -222,7 +246,11 @@ fn window_sizes_round_trip_through_the_weights_file() {
     }
     let net = wskp::net_for(3, one).unwrap();
     let path = tmp("k7.safetensors");
-    let meta = [("layers", "3".to_string()), ("sizes", one.name())];
+    let meta = [
+        ("layers", "3".to_string()),
+        ("sizes", one.name()),
+        ("transform", mcdenoise::methods::features::TRANSFORM.into()),
+    ];
     save_params(&path, &net, &net.init(2), Form::Branches, "wskp", &meta).unwrap();
     let f = File::read(&path).unwrap();
     assert_eq!(Sizes::of_file(&f).unwrap(), one);
@@ -232,11 +260,26 @@ fn window_sizes_round_trip_through_the_weights_file() {
     // No sizes metadata: the six.
     let p6 = tmp("six3.safetensors");
     let n3 = wskp::net(3).unwrap();
-    save_params(&p6, &n3, &n3.init(1), Form::Branches, "wskp", &[("layers", "3".into())]).unwrap();
+    save_params(
+        &p6,
+        &n3,
+        &n3.init(1),
+        Form::Branches,
+        "wskp",
+        &[("layers", "3".into()), ("transform", mcdenoise::methods::features::TRANSFORM.into())],
+    )
+    .unwrap();
     assert_eq!(Sizes::of_file(&File::read(&p6).unwrap()).unwrap(), Sizes::ALL);
     let pb = tmp("badsizes.safetensors");
-    save_params(&pb, &net, &net.init(2), Form::Branches, "wskp", &[("layers", "3".into()), ("sizes", "8".into())])
-        .unwrap();
+    save_params(
+        &pb,
+        &net,
+        &net.init(2),
+        Form::Branches,
+        "wskp",
+        &[("layers", "3".into()), ("sizes", "8".into()), ("transform", mcdenoise::methods::features::TRANSFORM.into())],
+    )
+    .unwrap();
     let e = Sizes::of_file(&File::read(&pb).unwrap()).unwrap_err().to_string();
     assert!(e.contains("sizes metadata") && e.contains("got 8"), "{e}");
 }

@@ -108,12 +108,16 @@ pub struct Found {
     pub convert: Convert,
     /// Whose convention the names follow.
     pub from: &'static str,
+    /// Other parts that have channels of these names (not read; `--part`
+    /// chooses).
+    pub also_in: Vec<String>,
 }
 
 /// What the user chose where a file is ambiguous.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Selection {
-    /// `--part NAME`: the part whose channels win where names clash.
+    /// `--part NAME`: the part whose channels win where names clash (by
+    /// default the first part that has them).
     pub part: Option<String>,
     /// `--layer NAME`: the layer prefix (`NAME.`) of every buffer's channels.
     pub layer: Option<String>,
@@ -149,13 +153,9 @@ fn full_names(p: &PartChannels, c: &str) -> Vec<String> {
 }
 
 /// The `(part, channel)` answering to `name`; with several, the one in the
-/// `--part` part, else an error naming the parts.
-fn lookup(
-    parts: &[PartChannels],
-    sel: &Selection,
-    name: &str,
-    file: &std::path::Path,
-) -> Result<Option<(usize, usize)>> {
+/// `--part` part, else the first (part 0 is a file's main image by
+/// OpenEXR's convention); `clashes` collects the other parts' names.
+fn lookup(parts: &[PartChannels], sel: &Selection, name: &str, clashes: &mut Vec<String>) -> Option<(usize, usize)> {
     let mut hits = Vec::new();
     for (pi, p) in parts.iter().enumerate() {
         for (ci, c) in p.channels.iter().enumerate() {
@@ -164,29 +164,18 @@ fn lookup(
             }
         }
     }
-    match hits.len() {
-        0 => Ok(None),
-        1 => Ok(Some(hits[0])),
-        _ => {
-            if let Some(want) = &sel.part {
-                if let Some(&h) = hits.iter().find(|(pi, _)| parts[*pi].name.as_deref() == Some(want.as_str())) {
-                    return Ok(Some(h));
-                }
-            }
-            let names: Vec<String> = hits
-                .iter()
-                .map(|(pi, _)| parts[*pi].name.clone().map_or(format!("part {pi}"), |n| format!("'{n}'")))
-                .collect();
-            Err(HostError::bad(
-                file,
-                format!(
-                    "channel {name} is in {} parts ({}); choose one with --part NAME",
-                    hits.len(),
-                    names.join(", ")
-                ),
-            ))
+    let chosen = sel
+        .part
+        .as_ref()
+        .and_then(|want| hits.iter().copied().find(|(pi, _)| parts[*pi].name.as_deref() == Some(want.as_str())))
+        .or_else(|| hits.first().copied())?;
+    for &(pi, _) in hits.iter().filter(|h| **h != chosen) {
+        let n = parts[pi].name.clone().map_or(format!("part {pi}"), |n| format!("'{n}'"));
+        if !clashes.contains(&n) {
+            clashes.push(n);
         }
     }
+    Some(chosen)
 }
 
 /// The layer prefixes `L` under which Blender's colour `L.Combined.R/G/B`
@@ -217,10 +206,7 @@ pub fn resolve(parts: &[PartChannels], sel: &Selection, file: &std::path::Path) 
         None => {
             let bare = aliases(Buffer::Color)
                 .iter()
-                .map(|al| al.names.iter().map(|n| lookup(parts, sel, n, file)).collect::<Result<Vec<_>>>())
-                .collect::<Result<Vec<_>>>()?
-                .iter()
-                .any(|v| v.iter().all(|x| x.is_some()));
+                .any(|al| al.names.iter().all(|n| lookup(parts, sel, n, &mut Vec::new()).is_some()));
             if bare {
                 None
             } else {
@@ -246,8 +232,8 @@ pub fn resolve(parts: &[PartChannels], sel: &Selection, file: &std::path::Path) 
     for b in Buffer::ALL {
         for al in aliases(b) {
             let names: Vec<String> = al.names.iter().map(|n| format!("{prefix}{n}")).collect();
-            let hits: Vec<Option<(usize, usize)>> =
-                names.iter().map(|n| lookup(parts, sel, n, file)).collect::<Result<_>>()?;
+            let mut also_in = Vec::new();
+            let hits: Vec<Option<(usize, usize)>> = names.iter().map(|n| lookup(parts, sel, n, &mut also_in)).collect();
             let present = hits.iter().filter(|h| h.is_some()).count();
             if present == names.len() {
                 sets[b.index()] = Some(Found {
@@ -255,6 +241,7 @@ pub fn resolve(parts: &[PartChannels], sel: &Selection, file: &std::path::Path) 
                     names,
                     convert: al.convert,
                     from: al.from,
+                    also_in,
                 });
                 break;
             }
@@ -342,14 +329,17 @@ mod tests {
         let p = [part(Some("rgba"), &["R", "G", "B"]), part(Some("aovs"), &["albedo.R", "albedo.G", "albedo.B"])];
         let r = resolve(&p, &Selection::default(), Path::new("f.exr")).unwrap();
         assert_eq!(r.sets[Buffer::Albedo.index()].as_ref().unwrap().channels, vec![(1, 0), (1, 1), (1, 2)]);
-        // A part named like a buffer: its R,G,B answer to albedo.R/G/B.
+        // A part named like a buffer: its R,G,B answer to albedo.R/G/B;
+        // the bare R,G,B are the first part's unless --part says.
         let p = [part(Some("beauty"), &["R", "G", "B"]), part(Some("albedo"), &["R", "G", "B"])];
-        let e = resolve(&p, &Selection::default(), Path::new("f.exr")).unwrap_err().to_string();
-        assert!(e.contains("--part") && e.contains("'beauty'") && e.contains("'albedo'"), "{e}");
-        let sel = Selection { part: Some("beauty".into()), ..Selection::default() };
-        let r = resolve(&p, &sel, Path::new("f.exr")).unwrap();
-        assert_eq!(r.sets[0].as_ref().unwrap().channels, vec![(0, 0), (0, 1), (0, 2)]);
+        let r = resolve(&p, &Selection::default(), Path::new("f.exr")).unwrap();
+        let c = r.sets[0].as_ref().unwrap();
+        assert_eq!(c.channels, vec![(0, 0), (0, 1), (0, 2)]);
+        assert_eq!(c.also_in, vec!["'albedo'".to_string()]);
         assert_eq!(r.sets[Buffer::Albedo.index()].as_ref().unwrap().channels, vec![(1, 0), (1, 1), (1, 2)]);
+        let sel = Selection { part: Some("albedo".into()), ..Selection::default() };
+        let r = resolve(&p, &sel, Path::new("f.exr")).unwrap();
+        assert_eq!(r.sets[0].as_ref().unwrap().channels, vec![(1, 0), (1, 1), (1, 2)]);
     }
 
     #[test]

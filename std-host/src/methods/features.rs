@@ -41,6 +41,10 @@
 //!
 //! # Network inputs
 //!
+//! The learned filters average the demodulated irradiance below a level
+//! where a pixel has no albedo and leave the excess at its pixel
+//! ([`split_excess`]): emitters seen directly stay sharp.
+//!
 //! The learned methods scale the colour by the frame's exposure (OIDN's
 //! autoexposure: `0.18 / exp(mean log luminance)` over 16x16 bins brighter
 //! than 1e-8) and pass it through `log1p` ([`transfer`]) before the
@@ -55,7 +59,7 @@ use crate::runtime::par::Pool;
 /// The input transform's name and version, recorded in every weights file
 /// of a learned method (metadata `transform`): weights trained under one
 /// transform are refused under another.
-pub const TRANSFORM: &str = "mcdenoise-features-2";
+pub const TRANSFORM: &str = "mcdenoise-features-3";
 
 /// The albedo (largest channel) from which a pixel is fully demodulated;
 /// below it the factor blends towards 1 (radiance).
@@ -68,6 +72,11 @@ pub const DECAY: f32 = 0.5;
 
 /// Exposure's target: the frame's mean log luminance is mapped to this.
 pub const EXPOSURE_KEY: f32 = 0.18;
+
+/// Above this, in exposure-normalised units (90 times the exposure key),
+/// the demodulated irradiance of a pixel without albedo (an emitter seen
+/// directly) is not averaged by the learned filters ([`split_excess`]).
+pub const EXCESS_LEVEL: f32 = 16.0;
 
 /// The factor of step 2 of the module's rule for one pixel: albedo `a`
 /// (any values) to `b` (in `(0, 1]` per channel).
@@ -217,6 +226,41 @@ pub fn exposure(rgb: &[f32], w: usize, h: usize) -> f32 {
 #[inline]
 pub fn transfer(x: f32) -> f32 {
     x.max(0.0).ln_1p()
+}
+
+/// Splits demodulated irradiance `c` (3 planes, in place) into the part
+/// the learned filters average and the `excess` (3 planes) they leave at
+/// its own pixel, added back after filtering: `excess = (1 - w) max(c - T,
+/// 0)` per channel, `w` the pixel's [`albedo_weight`] and `T =
+/// EXCESS_LEVEL / exposure`. An emitter seen directly (no albedo, radiance
+/// far above the frame's level) stays sharp and does not bleed into its
+/// neighbours, and no longer sets a fixed-point format; a pixel with albedo
+/// is averaged whole (its fireflies are noise to spread), and the split is
+/// continuous in the albedo. A kernel-predicting filter cannot do this by
+/// itself: WSKP's weights are shared by every window containing a pixel, so
+/// one weight cannot keep a light in its own output and out of its
+/// neighbours'.
+pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], exposure: f32, excess: &mut [f32]) {
+    let n = c.len() / 3;
+    let level = EXCESS_LEVEL / if exposure > 0.0 && exposure.is_finite() { exposure } else { 1.0 };
+    let mut planes: Vec<&mut [f32]> = c.chunks_mut(n.max(1)).collect();
+    planes.extend(excess.chunks_mut(n.max(1)));
+    if n == 0 {
+        return;
+    }
+    pool.planes(planes, 1 << 14, |start, runs| {
+        let (cs, ex) = runs.split_at_mut(3);
+        for i in 0..cs[0].len() {
+            let p = start + i;
+            let keep = 1.0 - albedo_weight([albedo[p], albedo[n + p], albedo[2 * n + p]]);
+            for ch in 0..3 {
+                let v = cs[ch][i];
+                let e = keep * (v - level).max(0.0);
+                cs[ch][i] = v - e;
+                ex[ch][i] = e;
+            }
+        }
+    });
 }
 
 /// The normal as a network input, `n / 2 + 1/2`.
@@ -430,7 +474,8 @@ mod tests {
     fn blend_is_continuous_and_ends_at_radiance_and_albedo() {
         assert_eq!(blend([0.0; 3]), [1.0; 3]);
         assert_eq!(blend([0.5, 0.5, 0.5]), [0.5; 3]);
-        assert_eq!(blend([0.8, 0.0, 0.4]), [0.8, 0.08, 0.4]);
+        let b = blend([0.8, 0.0, 0.4]);
+        assert!(b[0] == 0.8 && (b[1] - KAPPA * 0.8).abs() < 1e-7 && b[2] == 0.4, "{b:?}");
         let mut prev = blend([0.0; 3])[0];
         for i in 1..=2000 {
             let a = i as f32 * 1e-5;

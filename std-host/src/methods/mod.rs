@@ -227,13 +227,18 @@ impl Default for Settings {
 }
 
 /// A denoiser for one sequence: frames go in in order.
-pub trait Denoiser {
+pub trait Denoiser: Send {
     /// The method's name.
     fn name(&self) -> &'static str;
     /// What it built and skipped.
     fn plan(&self) -> &Plan;
     /// Denoises the next frame into three f32 planes.
     fn denoise(&mut self, frame: &Frame, ctx: &mut Ctx, t: &mut Timings) -> Result<Vec<f32>>;
+    /// Writes the method's learned state (cross-regression's network and
+    /// Adam's state) to `path`; the other methods keep none.
+    fn save_state(&self, _path: &std::path::Path) -> Result<()> {
+        Err(HostError::Usage(format!("{} keeps no state to save (only cross does)", self.name())))
+    }
 }
 
 /// Builds the denoiser for `kind` from the sequence's first frame. Every
@@ -276,6 +281,9 @@ impl Denoiser for OneSize {
             ));
         }
         self.inner.denoise(frame, ctx, t)
+    }
+    fn save_state(&self, path: &std::path::Path) -> Result<()> {
+        self.inner.save_state(path)
     }
 }
 

@@ -350,8 +350,9 @@ impl Model {
                         wskp::check_inputs(f)?;
                         let (c, rest) = rest.split_at_mut(3 * n);
                         let (alb, rest) = rest.split_at_mut(3 * n);
-                        let (rf, expo) = rest.split_at_mut(3 * n);
-                        let e = wskp::inputs(&pool, f, t, x, c, alb)?;
+                        let (rf, rest) = rest.split_at_mut(3 * n);
+                        let (expo, ex) = rest.split_at_mut(n);
+                        let e = wskp::inputs(pool, f, t, x, c, alb, ex)?;
                         rf.copy_from_slice(r);
                         expo.fill(e);
                     }
@@ -361,8 +362,9 @@ impl Model {
                         let (ct, rest) = rest.split_at_mut(3 * n);
                         let (alb, rest) = rest.split_at_mut(3 * n);
                         let (rf, rest) = rest.split_at_mut(3 * n);
-                        let (feats, expo) = rest.split_at_mut(7 * n);
-                        let e = afn::inputs(&pool, variant, f, t, x, c1, ct, alb)?;
+                        let (feats, rest) = rest.split_at_mut(7 * n);
+                        let (expo, ex) = rest.split_at_mut(n);
+                        let e = afn::inputs(pool, variant, f, t, x, c1, ct, alb, ex)?;
                         rf.copy_from_slice(r);
                         feats.copy_from_slice(&x[6 * n..]);
                         expo.fill(e);

@@ -131,10 +131,13 @@ pub fn check_inputs(f: &Frame) -> Result<()> {
 }
 
 /// The network input `x` (13 planes), the demodulated 1-spp and TA
-/// irradiance `c1`, `ct` (3 each) and the demodulation factor `d` (3) of a
-/// frame from its accumulated radiance `t`, by the rules of
+/// irradiance `c1`, `ct` (3 each, the parts the filters average), the
+/// demodulation factor `d` (3) and the 1-spp image's excess `ex` (3, added
+/// back at its pixel: a light seen directly is exact at 1 spp) of a frame
+/// from its accumulated radiance `t`, by the rules of
 /// [`crate::methods::features`]; returns the frame's exposure. A
-/// single-image variant sees its image in both slots.
+/// single-image variant sees its image in both slots. The output is `d
+/// (refine(fuse(filter(c1), filter(ct))) + ex)`.
 #[allow(clippy::too_many_arguments)]
 pub fn inputs(
     pool: &Pool,
@@ -145,6 +148,7 @@ pub fn inputs(
     c1: &mut [f32],
     ct: &mut [f32],
     d: &mut [f32],
+    ex: &mut [f32],
 ) -> Result<f32> {
     check_inputs(f)?;
     let r = f.require(Buffer::Color, "afn")?;
@@ -154,8 +158,13 @@ pub fn inputs(
         Variant::TaOnly => (t, t),
         Variant::OneSppOnly => (r, r),
     };
-    features::demodulation(pool, f.require(Buffer::Albedo, "afn")?, f.width, f.height, d);
-    features::network_inputs(pool, f, "afn", e, &[r, t], d, x, &mut [c1, ct])?;
+    let a = f.require(Buffer::Albedo, "afn")?;
+    features::demodulation(pool, a, f.width, f.height, d);
+    features::network_inputs(pool, f, "afn", e, &[r, t], d, x, &mut [&mut *c1, &mut *ct])?;
+    // The TA image's excess is dropped (`ex` holds it for a moment): the
+    // 1-spp image's goes back.
+    features::split_excess(pool, ct, a, e, ex);
+    features::split_excess(pool, c1, a, e, ex);
     Ok(e)
 }
 
@@ -163,8 +172,8 @@ pub fn inputs(
 /// workspace is `wss[1]`).
 pub mod buf {
     /// `c1, ct, alb, ref` (3 planes each), the refinement's auxiliary
-    /// buffers (7) and the frame's exposure (1, constant): 20 planes, full
-    /// scale.
+    /// buffers (7), the frame's exposure (1, constant) and the excess (3):
+    /// 23 planes, full scale.
     pub const DATA: usize = 0;
     /// `K_1spp` (49, half).
     pub const K1: usize = 1;
@@ -201,7 +210,7 @@ pub mod buf {
     /// Scratch of the apply.
     pub const SCRATCH: usize = 17;
     /// Planes of [`DATA`].
-    pub const DATA_PLANES: usize = 20;
+    pub const DATA_PLANES: usize = 23;
 }
 
 /// Allocates a crop's training buffers once.
@@ -270,7 +279,8 @@ pub fn head(
     let (ct, rest_d) = rest_d.split_at(3 * n);
     let (alb, rest_d) = rest_d.split_at(3 * n);
     let (reff, rest_d) = rest_d.split_at(3 * n);
-    let (feats, expo) = rest_d.split_at(7 * n);
+    let (feats, rest_d) = rest_d.split_at(7 * n);
+    let (expo, excess) = rest_d.split_at(n);
     let e = expo[0];
     // Kernels and the fusion weight.
     softmax::channel_softmax::<F32>(isa, &v(logit1, TAPS, wh, hh)?, &mut vm(k1, TAPS, wh, hh)?)?;
@@ -321,7 +331,7 @@ pub fn head(
     }
     // Remodulate, the loss and its gradient.
     for k in 0..3 * n {
-        outb[k] = ob[k] * alb[k];
+        outb[k] = (ob[k] + excess[k]) * alb[k];
     }
     let l = loss.eval(outb, reff, g_out, scale, e);
     // Back through the remodulation and the refinement to i.
@@ -451,10 +461,12 @@ pub fn split_params(file: &File, kn: &Net, rn: &Net) -> Result<(Vec<f32>, Vec<f3
     Ok((kp, rp))
 }
 
-/// Saves both networks' parameters.
+/// Saves both networks' parameters (with this build's input transform).
 pub fn save(path: &std::path::Path, kn: &Net, kp: &[f32], rn: &Net, rp: &[f32], meta: &[(&str, String)]) -> Result<()> {
     use crate::nn::weights::{save_model, Form};
-    save_model(path, "afn", &[("", kn, kp), ("refine.", rn, rp)], Form::Branches, meta, &[])
+    let mut all = vec![("transform", features::TRANSFORM.to_string())];
+    all.extend(meta.iter().filter(|(k, _)| *k != "transform").cloned());
+    save_model(path, "afn", &[("", kn, kp), ("refine.", rn, rp)], Form::Branches, &all, &[])
 }
 
 impl<P: HostPrecision> Afn<P> {
@@ -488,7 +500,7 @@ impl<P: HostPrecision> Afn<P> {
         use crate::runtime::precision::store_bytes;
         let s = store_bytes::<P>();
         use crate::nn::infer::{held_bytes_per_pixel, ranges_bytes_per_pixel, tensors_bytes_per_pixel};
-        let bufs = 4 * (CIN as u64 + 9);
+        let bufs = 4 * (CIN as u64 + 12);
         let kn = kernel_net().expect("the kernel predictor");
         let (body_n, _) = body_net(&kn).expect("its body");
         let refine_n = refine_net().expect("the refinement network");
@@ -605,11 +617,11 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
         let ta = t.time("decode", || color.decode::<P>());
         let bufs = self.bufs.get_or_insert_with(Vec::new);
         if bufs.first().is_none_or(|x| x.len() != CIN * n) {
-            *bufs = vec![vec![0.0; CIN * n], vec![0.0; 3 * n], vec![0.0; 3 * n], vec![0.0; 3 * n]];
+            *bufs = vec![vec![0.0; CIN * n], vec![0.0; 3 * n], vec![0.0; 3 * n], vec![0.0; 3 * n], vec![0.0; 3 * n]];
         }
-        let [x, c1, ct, alb] = bufs.get_disjoint_mut([0, 1, 2, 3]).expect("four buffers");
+        let [x, c1, ct, alb, ex] = bufs.get_disjoint_mut([0, 1, 2, 3, 4]).expect("five buffers");
         let variant = self.variant;
-        let e = t.time("network inputs", || inputs(&ctx.pool, variant, f, &ta, x, c1, ct, alb))?;
+        let e = t.time("network inputs", || inputs(&ctx.pool, variant, f, &ta, x, c1, ct, alb, ex))?;
         if self.infer.is_none() {
             let (body, head_at) = body_net(&self.kernel_net)?;
             let last = *self.kernel_net.convs.last().expect("the head is a conv");
@@ -720,11 +732,11 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
             P::encode(&rin, &mut rp.data, rp.frac);
             let r = t.time("refinement", || rinf.run(ctx, rp))?.decode::<P>();
             for k in 0..3 * n {
-                out[k] = (rin[k] + r[k]).exp_m1() / e * alb[k];
+                out[k] = ((rin[k] + r[k]).exp_m1() / e + ex[k]) * alb[k];
             }
         } else {
             for k in 0..3 * n {
-                out[k] = i[k] * alb[k];
+                out[k] = (i[k] + ex[k]) * alb[k];
             }
         }
         Ok(out)

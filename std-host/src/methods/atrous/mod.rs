@@ -191,6 +191,8 @@ impl<P: HostPrecision> Atrous<P> {
         // The firefly clamp's planes.
         let k = settings.firefly_clamp.unwrap_or(if pair { FIREFLY_K_PAIR } else { FIREFLY_K });
         let kept = kept + 4 * clamp_planes(k, pair) as u64;
+        // The demodulation factor (3 f32 planes, with albedo).
+        let kept = kept + 12 * has(Buffer::Albedo);
         let guides = if f32s { 0 } else { s + 3 * s * normal + 3 * s * position + s * depth + nsrc * s };
         let mut l = Ledger::default();
         l.alloc(kept);

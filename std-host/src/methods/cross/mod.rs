@@ -448,6 +448,9 @@ impl Denoiser for Cross {
     fn plan(&self) -> &Plan {
         &self.plan
     }
+    fn save_state(&self, path: &std::path::Path) -> Result<()> {
+        self.save(path)
+    }
     fn denoise(&mut self, f: &Frame, ctx: &mut Ctx, t: &mut Timings) -> Result<Vec<f32>> {
         require_b(f)?;
         let (w, h) = (f.width, f.height);

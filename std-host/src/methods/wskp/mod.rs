@@ -132,10 +132,12 @@ pub fn check_inputs(f: &Frame) -> Result<()> {
     Ok(())
 }
 
-/// The network input `x` (10 planes), the demodulated irradiance `c` (3)
-/// and the demodulation factor `d` (3; the filter's output is remodulated
-/// by it) of a frame from its accumulated radiance `t` (3 planes), by the
-/// rules of [`crate::methods::features`]; returns the frame's exposure.
+/// The network input `x` (10 planes), the demodulated irradiance `c` (3,
+/// the part the filter averages), the demodulation factor `d` (3; the
+/// filter's output is remodulated by it) and the excess `ex` (3, added back
+/// at its pixel) of a frame from its accumulated radiance `t` (3 planes),
+/// by the rules of [`crate::methods::features`]; returns the frame's
+/// exposure. The output is `d (filter(c) + ex)`.
 pub fn inputs(
     pool: &crate::runtime::par::Pool,
     f: &Frame,
@@ -143,18 +145,21 @@ pub fn inputs(
     x: &mut [f32],
     c: &mut [f32],
     d: &mut [f32],
+    ex: &mut [f32],
 ) -> Result<f32> {
     check_inputs(f)?;
     let (w, h) = (f.width, f.height);
-    features::demodulation(pool, f.require(Buffer::Albedo, "wskp")?, w, h, d);
+    let a = f.require(Buffer::Albedo, "wskp")?;
+    features::demodulation(pool, a, w, h, d);
     let e = features::exposure(f.require(Buffer::Color, "wskp")?, w, h);
-    features::network_inputs(pool, f, "wskp", e, &[t], d, x, &mut [c])?;
+    features::network_inputs(pool, f, "wskp", e, &[t], d, x, &mut [&mut *c])?;
+    features::split_excess(pool, c, a, e, ex);
     Ok(e)
 }
 
-/// Planes of a training crop's data: `c`, `d`, the reference (3 each) and
-/// the frame's exposure (1, constant).
-pub const DATA_PLANES: usize = 10;
+/// Planes of a training crop's data: `c`, `d`, the reference (3 each),
+/// the frame's exposure (1, constant) and the excess (3).
+pub const DATA_PLANES: usize = 13;
 
 /// The per-crop buffers of training: the data ([`DATA_PLANES`]), the
 /// filter's output, its gradient, the radiance gradient, and the two
@@ -195,6 +200,10 @@ pub fn head(ws: &mut Workspace, sizes: Sizes, loss: Loss, scale: f32, isa: mcden
         radiance: View::new(&data[..3 * n], 3, w, h)?,
     };
     softmax::fused_filter::<F32>(isa, WindowPath::Separable, &inp, &mut ViewMut::new(out, 3, w, h)?, 0, fs)?;
+    // The excess goes back at its pixel (a constant of the loss).
+    for k in 0..3 * n {
+        out[k] += data[3 * n + k] * data[10 * n + k];
+    }
     let l = loss.eval(out, &data[6 * n..9 * n], g, scale, data[9 * n]);
     let gv = View::new(g, 3, w, h)?;
     let (di, df) = dy.split_at_mut(m * n);
@@ -231,11 +240,18 @@ struct Bufs {
     x: Vec<f32>,
     c: Vec<f32>,
     alb: Vec<f32>,
+    ex: Vec<f32>,
 }
 
 impl Bufs {
     fn new(n: usize) -> Bufs {
-        Bufs { ta: vec![0.0; 3 * n], x: vec![0.0; 10 * n], c: vec![0.0; 3 * n], alb: vec![0.0; 3 * n] }
+        Bufs {
+            ta: vec![0.0; 3 * n],
+            x: vec![0.0; 10 * n],
+            c: vec![0.0; 3 * n],
+            alb: vec![0.0; 3 * n],
+            ex: vec![0.0; 3 * n],
+        }
     }
 }
 
@@ -266,7 +282,7 @@ impl<P: HostPrecision> Wskp<P> {
         use crate::runtime::precision::{store_bytes, store_is};
         let s = store_bytes::<P>();
         let f32s = store_is::<P, f32>();
-        let bufs = 4 * (3 + 10 + 3 + 3);
+        let bufs = 4 * (3 + 10 + 3 + 3 + 3);
         let stored = if f32s { 0 } else { 16 * s };
         // Another layer count is refused when the method is built.
         let network = net(if layers == 3 { 3 } else { 6 }).expect("3 or 6 layers");
@@ -339,7 +355,7 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
                 &bufs.ta
             }
         };
-        t.time("network inputs", || inputs(&ctx.pool, f, ta, &mut bufs.x, &mut bufs.c, &mut bufs.alb))?;
+        t.time("network inputs", || inputs(&ctx.pool, f, ta, &mut bufs.x, &mut bufs.c, &mut bufs.alb, &mut bufs.ex))?;
         if self.infer.is_none() {
             // Fixed point: the formats from an f32 run on the first frame.
             let ranges = if P::FIXED_POINT {
@@ -408,6 +424,10 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
                 })?;
                 t.time("decode", || P::decode(&o.data, &mut out, o.frac));
             }
+        }
+        // The excess the filter left out goes back at its pixel, remodulated.
+        for ((o, &d), &e) in out.iter_mut().zip(&bufs.alb).zip(&bufs.ex) {
+            *o += d * e;
         }
         Ok(out)
     }
