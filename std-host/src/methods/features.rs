@@ -53,6 +53,9 @@
 //! in the radiance, so with exposure-normalised inputs a frame scaled by `k`
 //! is denoised into the output scaled by `k`.
 
+use mcdenoise_core::tonemap::Map;
+use mcdenoise_core::{Isa, View, ViewMut, F32};
+
 use crate::io::frame::{Buffer, Frame};
 use crate::runtime::par::Pool;
 
@@ -89,16 +92,45 @@ pub fn blend(a: [f32; 3]) -> [f32; 3] {
     c.map(|v| w * v.max(KAPPA * m) + (1.0 - w))
 }
 
+/// The envelope's reach: a factor is at least `KAPPA * TAU` (step 2), and
+/// `DECAY^REACH` times the largest factor (1) is below that, so no pixel
+/// farther than `REACH` steps can raise another's factor.
+const REACH: usize = 9;
+const _: () = assert!(KAPPA * TAU > 0.001_953_125 && DECAY == 0.5); // 0.5^9
+
+/// `row[x] = max(row[x], DECAY^|d| row[x + d])` for `0 < |d| < 16` (at
+/// least [`REACH`]): the one-dimensional envelope, by doubling shifts (each
+/// step a max over shifted slices, which vectorises), forward then back.
+fn envelope_1d(row: &mut [f32], tmp: &mut Vec<f32>) {
+    let n = row.len();
+    tmp.resize(n, 0.0);
+    for s in [1usize, 2, 4, 8] {
+        if s >= n {
+            break;
+        }
+        let f = DECAY.powi(s as i32);
+        tmp.copy_from_slice(row);
+        for (r, &t) in row[s..].iter_mut().zip(&tmp[..n - s]) {
+            *r = r.max(f * t);
+        }
+        for (r, &t) in row[..n - s].iter_mut().zip(&tmp[s..]) {
+            *r = r.max(f * t);
+        }
+    }
+}
+
 /// The demodulation factor `d` (3 planes of `w x h`, written into `d`) of
 /// the albedo `albedo` (3 planes): the module's rule. Rows in parallel on
-/// `pool`, then columns.
+/// `pool` (the blend and the envelope along the row), then bands of rows
+/// (the envelope along the columns, with [`REACH`] rows of halo).
 pub fn demodulation(pool: &Pool, albedo: &[f32], w: usize, h: usize, d: &mut [f32]) {
     let n = w * h;
     assert!(albedo.len() >= 3 * n && d.len() >= 3 * n, "demodulation: 3 planes of {w}x{h}");
     if n == 0 {
         return;
     }
-    // Steps 1 and 2, and the envelope along each row (forward, backward).
+    const _: () = assert!(REACH < 16);
+    // Steps 1 and 2, and the envelope along each row.
     {
         let (d0, rest) = d[..3 * n].split_at_mut(n);
         let (d1, d2) = rest.split_at_mut(n);
@@ -111,7 +143,7 @@ pub fn demodulation(pool: &Pool, albedo: &[f32], w: usize, h: usize, d: &mut [f3
             .collect();
         pool.install(|| {
             use rayon::prelude::*;
-            rows.into_par_iter().for_each(|(y, r0, r1, r2)| {
+            rows.into_par_iter().with_min_len(16).for_each_init(Vec::new, |tmp, (y, r0, r1, r2)| {
                 for x in 0..w {
                     let i = y * w + x;
                     let b = blend([albedo[i], albedo[n + i], albedo[2 * n + i]]);
@@ -120,41 +152,28 @@ pub fn demodulation(pool: &Pool, albedo: &[f32], w: usize, h: usize, d: &mut [f3
                     r2[x] = b[2];
                 }
                 for r in [r0, r1, r2] {
-                    for x in 1..w {
-                        r[x] = r[x].max(DECAY * r[x - 1]);
-                    }
-                    for x in (0..w.saturating_sub(1)).rev() {
-                        r[x] = r[x].max(DECAY * r[x + 1]);
-                    }
+                    envelope_1d(r, tmp);
                 }
             });
         });
     }
-    // The envelope along columns: row by row (each row a vector operation),
-    // the planes and column blocks in parallel.
-    let block = 256usize;
-    let mut jobs: Vec<(usize, &mut [f32])> = Vec::new();
-    for plane in d[..3 * n].chunks_mut(n) {
-        jobs.push((0, plane));
-    }
+    // The envelope along columns: forward and backward recurrences over the
+    // rows, each step a vector operation along a whole row; the planes in
+    // parallel.
+    let planes: Vec<&mut [f32]> = d[..3 * n].chunks_mut(n).collect();
     pool.install(|| {
         use rayon::prelude::*;
-        jobs.into_par_iter().for_each(|(_, plane)| {
-            for x0 in (0..w).step_by(block) {
-                let x1 = (x0 + block).min(w);
-                for y in 1..h {
-                    let (above, below) = plane.split_at_mut(y * w);
-                    let prev = &above[(y - 1) * w + x0..(y - 1) * w + x1];
-                    for (v, &p) in below[x0..x1].iter_mut().zip(prev) {
-                        *v = v.max(DECAY * p);
-                    }
+        planes.into_par_iter().for_each(|plane| {
+            for y in 1..h {
+                let (above, below) = plane.split_at_mut(y * w);
+                for (v, &p) in below[..w].iter_mut().zip(&above[(y - 1) * w..]) {
+                    *v = v.max(DECAY * p);
                 }
-                for y in (0..h.saturating_sub(1)).rev() {
-                    let (above, below) = plane.split_at_mut((y + 1) * w);
-                    let next = &below[x0..x1];
-                    for (v, &p) in above[y * w + x0..y * w + x1].iter_mut().zip(next) {
-                        *v = v.max(DECAY * p);
-                    }
+            }
+            for y in (0..h.saturating_sub(1)).rev() {
+                let (above, below) = plane.split_at_mut((y + 1) * w);
+                for (v, &p) in above[y * w..].iter_mut().zip(&below[..w]) {
+                    *v = v.max(DECAY * p);
                 }
             }
         });
@@ -222,10 +241,11 @@ pub fn exposure(rgb: &[f32], w: usize, h: usize) -> f32 {
 
 /// The HDR transfer curve of the networks' colour inputs, applied to
 /// exposure-scaled radiance: `log1p(max(x, 0))` (0.17 at the exposure
-/// key, 4.6 at 100 times it).
+/// key, 4.6 at 100 times it). [`network_inputs`] applies it through the
+/// core's `tonemap::Map::Log1p` (its SIMD path).
 #[inline]
 pub fn transfer(x: f32) -> f32 {
-    x.max(0.0).ln_1p()
+    Map::Log1p.apply(x)
 }
 
 /// Splits demodulated irradiance `c` (3 planes, in place) into the part
@@ -344,6 +364,7 @@ pub fn network_inputs(
         return Err(crate::HostError::Usage(format!("{who}: colour buffers of the wrong size")));
     }
     let (lo, scale) = depth_range(depth);
+    let isa = Isa::detect();
     let mut planes: Vec<&mut [f32]> = x.chunks_mut(n.max(1)).collect();
     for c in demodulated.iter_mut() {
         planes.extend(c.chunks_mut(n.max(1)));
@@ -361,9 +382,14 @@ pub fn network_inputs(
         for (j, col) in colours.iter().enumerate() {
             for ch in 0..3 {
                 let src = &col[seg(col, ch)];
-                for (o, &v) in xs[3 * j + ch].iter_mut().zip(src) {
-                    *o = transfer(v * exposure);
+                // The exposure-scaled colour, through the core's SIMD log1p
+                // (the demodulated plane holds it for a moment).
+                for (o, &v) in dem[3 * j + ch].iter_mut().zip(src) {
+                    *o = v * exposure;
                 }
+                let from = View::new(&*dem[3 * j + ch], 1, len, 1).expect("a run");
+                let mut to = ViewMut::new(&mut *xs[3 * j + ch], 1, len, 1).expect("a run");
+                mcdenoise_core::tonemap::map::<F32>(isa, Map::Log1p, &from, &mut to).expect("checked ISA and shapes");
                 let dv = &d[seg(d, ch)];
                 for ((o, &v), &q) in dem[3 * j + ch].iter_mut().zip(src).zip(dv) {
                     *o = v / q;
