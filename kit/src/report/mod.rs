@@ -1,7 +1,7 @@
 //! `mcdenoise precision`: the speed/accuracy trade of every core operator in
 //! every precision and instruction set, measured.
 //!
-//! For each operator of the [registry](crate::registry) x precision x ISA:
+//! For each operator of the [registry] x precision x ISA:
 //! the median wall time of the operator at the frame size (1280x720 by
 //! default), and its error against the f64 oracle evaluated on the same f32
 //! inputs (so the error includes the cost of storing the inputs in the
