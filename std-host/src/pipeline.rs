@@ -321,11 +321,11 @@ pub fn denoise_sequence(
         // One frame at a time (the pipelined estimate did not fit).
         let mut next = Some(first);
         (|| -> Result<()> {
-            for i in 0..files.len() {
+            for (i, path) in files.iter().enumerate() {
                 let r = match next.take() {
                     Some(r) => r,
                     None => {
-                        let r = read_next(&files[i])?;
+                        let r = read_next(path)?;
                         report.read += r.seconds;
                         r
                     }
@@ -361,14 +361,14 @@ pub fn denoise_sequence(
             let mut next = Some(first);
             let mut job_tx: Option<SyncSender<Job>> = Some(job_tx);
             let run = (|| -> Result<()> {
-                for i in 0..files.len() {
+                for (i, path) in files.iter().enumerate() {
                     let r = match next.take() {
                         Some(r) => r,
                         None => {
                             let t = Instant::now();
                             let r = frame_rx
                                 .recv()
-                                .map_err(|_| HostError::bad(&files[i], "the reader stopped before this frame"))??;
+                                .map_err(|_| HostError::bad(path, "the reader stopped before this frame"))??;
                             report.read_wait += t.elapsed();
                             report.read += r.seconds;
                             r

@@ -243,7 +243,7 @@ impl Frame {
 }
 
 /// How a frame file is read.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct ReadOptions {
     /// The layer and part where the file is ambiguous.
     pub selection: crate::io::names::Selection,
@@ -252,12 +252,6 @@ pub struct ReadOptions {
     pub buffers: Option<[bool; 7]>,
     /// Keep every channel no buffer reads (for writing them back).
     pub keep_channels: bool,
-}
-
-impl Default for ReadOptions {
-    fn default() -> Self {
-        ReadOptions { selection: Default::default(), buffers: None, keep_channels: false }
-    }
 }
 
 /// The largest header (magic number, version, attributes) read before it

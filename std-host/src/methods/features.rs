@@ -134,7 +134,8 @@ pub fn demodulation(pool: &Pool, albedo: &[f32], w: usize, h: usize, d: &mut [f3
     {
         let (d0, rest) = d[..3 * n].split_at_mut(n);
         let (d1, d2) = rest.split_at_mut(n);
-        let rows: Vec<(usize, &mut [f32], &mut [f32], &mut [f32])> = d0
+        type Row<'a> = (usize, &'a mut [f32], &'a mut [f32], &'a mut [f32]);
+        let rows: Vec<Row<'_>> = d0
             .chunks_mut(w)
             .zip(d1.chunks_mut(w))
             .zip(d2.chunks_mut(w))
@@ -342,6 +343,7 @@ pub fn is_emitter(a: &[f32], n: usize, i: usize) -> bool {
 ///
 /// The frame needs albedo, normal and depth (`who` names the method in
 /// the error).
+#[allow(clippy::too_many_arguments)]
 pub fn network_inputs(
     pool: &Pool,
     f: &Frame,

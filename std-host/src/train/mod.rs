@@ -102,7 +102,7 @@ impl Schedule {
             (Schedule::Constant, _) | (_, None) => base,
             (Schedule::Cosine, Some(total)) => {
                 let total = total.max(1) as f64;
-                let warm = (total / 20.0).min(1000.0).max(1.0);
+                let warm = (total / 20.0).clamp(1.0, 1000.0);
                 let s = step as f64;
                 let f = if s < warm {
                     (s + 1.0) / warm

@@ -641,7 +641,7 @@ impl<P: HostPrecision> Atrous<P> {
 /// on the noisiest pixels, against one that closes on every quiet pixel).
 fn noise_frac<P: HostPrecision>(noise: &[f32], floor: f32) -> i8 {
     let image = P::choose_frac(noise, Kind::Image);
-    if !P::FIXED_POINT || !(floor > 0.0 && floor.is_finite()) {
+    if !(P::FIXED_POINT && floor > 0.0 && floor.is_finite()) {
         return image;
     }
     let need = (NOISE_FLOOR_LSB / floor).log2().ceil().clamp(-8.0, 14.0) as i8;
