@@ -73,6 +73,7 @@ def methods(weights):
     for k in ('fused-1500', 'k3', 'k5', 'k7', 'k9', 'k11', 'k13'):
         if os.path.exists(w('wskp3-%s.safetensors' % k)):
             m.append(('wskp3 ' + k, 'mcd', ['--method', 'wskp', '--layers', '3', '--weights', w('wskp3-%s.safetensors' % k)]))
+    m.append(('cross', 'mcd', ['--method', 'cross']))
     if os.path.exists(w('torch_wskp6.safetensors')):
         m.append(('pytorch wskp6', 'torch', ['--weights', w('torch_wskp6.safetensors'), '--layers', '6']))
     m.append(('oidn fast', 'oidn', ['--quality', 'fast']))
@@ -86,6 +87,8 @@ def main():
     p.add_argument('--weights', required=True)
     p.add_argument('-o', '--output', required=True)
     p.add_argument('--only', help='comma-separated method labels')
+    p.add_argument('--summary', default='input,ta,atrous,sure-atrous,wskp3 f32,wskp6 f32,afn f32,cross,oidn fast,oidn high',
+                   help='methods of the summary table (PSNR and relMSE per sequence)')
     a = p.parse_args()
     py = os.path.join(HERE, '.venv-peers', 'bin', 'python')
     seqs = sorted(d for d in os.listdir(a.test) if os.path.isdir(os.path.join(a.test, d)))
@@ -127,8 +130,16 @@ def main():
             f.write('frame,' + ','.join(labels) + '\n')
             for i in range(len(r[labels[0]]['psnr'])):
                 f.write('%d,' % i + ','.join('%.3f' % r[l]['psnr'][i] for l in labels) + '\n')
+    cols = [c for c in a.summary.split(',') if any(c in r for r in results.values())]
+    summary = ['| sequence | ' + ' | '.join(cols) + ' |', '|---|' + '---|' * len(cols)]
+    for seq, r in results.items():
+        cells = []
+        for c in cols:
+            m = r.get(c, {}).get('mean')
+            cells.append('%.2f (%.4f)' % (m['psnr'], m['relmse']) if m else '')
+        summary.append('| %s | %s |' % (seq, ' | '.join(cells)))
     with open(os.path.join(a.output, 'quality.md'), 'w') as f:
-        f.write('\n'.join(lines) + '\n')
+        f.write('PSNR dB (relMSE), mean over the frames\n\n' + '\n'.join(summary) + '\n' + '\n'.join(lines) + '\n')
     print('wrote %s' % a.output)
 
 

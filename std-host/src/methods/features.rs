@@ -62,7 +62,7 @@ use crate::runtime::par::Pool;
 /// The input transform's name and version, recorded in every weights file
 /// of a learned method (metadata `transform`): weights trained under one
 /// transform are refused under another.
-pub const TRANSFORM: &str = "mcdenoise-features-3";
+pub const TRANSFORM: &str = "mcdenoise-features-4";
 
 /// The albedo (largest channel) from which a pixel is fully demodulated;
 /// below it the factor blends towards 1 (radiance).
@@ -76,10 +76,15 @@ pub const DECAY: f32 = 0.5;
 /// Exposure's target: the frame's mean log luminance is mapped to this.
 pub const EXPOSURE_KEY: f32 = 0.18;
 
-/// Above this, in exposure-normalised units (90 times the exposure key),
-/// the demodulated irradiance of a pixel without albedo (an emitter seen
-/// directly) is not averaged by the learned filters ([`split_excess`]).
-pub const EXCESS_LEVEL: f32 = 16.0;
+/// The lowest level, in exposure-normalised units (5.5 times the exposure
+/// key), above which a pixel without albedo keeps its irradiance out of
+/// the learned filters ([`split_excess`]).
+pub const EXCESS_FLOOR: f32 = 1.0;
+/// ... and the multiple of the surrounding surfaces' level above which.
+pub const EXCESS_RATIO: f32 = 4.0;
+/// The reach of the learned filters (WSKP's 13x13 windows, AFN's 7x7 at
+/// half scale), over which those surroundings are measured.
+pub const EXCESS_RADIUS: usize = 7;
 
 /// The factor of step 2 of the module's rule for one pixel: albedo `a`
 /// (any values) to `b` (in `(0, 1]` per channel).
@@ -249,39 +254,113 @@ pub fn transfer(x: f32) -> f32 {
     Map::Log1p.apply(x)
 }
 
-/// Splits demodulated irradiance `c` (3 planes, in place) into the part
-/// the learned filters average and the `excess` (3 planes) they leave at
-/// its own pixel, added back after filtering: `excess = (1 - w) max(c - T,
-/// 0)` per channel, `w` the pixel's [`albedo_weight`] and `T =
-/// EXCESS_LEVEL / exposure`. An emitter seen directly (no albedo, radiance
-/// far above the frame's level) stays sharp and does not bleed into its
-/// neighbours, and no longer sets a fixed-point format; a pixel with albedo
-/// is averaged whole (its fireflies are noise to spread), and the split is
-/// continuous in the albedo. A kernel-predicting filter cannot do this by
-/// itself: WSKP's weights are shared by every window containing a pixel, so
-/// one weight cannot keep a light in its own output and out of its
-/// neighbours'.
-pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], exposure: f32, excess: &mut [f32]) {
-    let n = c.len() / 3;
-    let level = EXCESS_LEVEL / if exposure > 0.0 && exposure.is_finite() { exposure } else { 1.0 };
-    let mut planes: Vec<&mut [f32]> = c.chunks_mut(n.max(1)).collect();
-    planes.extend(excess.chunks_mut(n.max(1)));
-    if n == 0 {
+/// Splits demodulated irradiance `c` (3 planes of `w x h`, in place) into
+/// the part the learned filters average and the `excess` (3 planes) they
+/// leave at its own pixel, added back after filtering. A kernel-predicting
+/// filter cannot keep a light out of its neighbours by itself (WSKP's
+/// weights are shared by every window that contains a pixel), so:
+///
+/// - a pixel takes part where it or a 3x3 neighbour has no albedo to speak
+///   of (`keep = max over 3x3 of 1 - w`, [`albedo_weight`]): emitters seen
+///   directly, their outline (pixels a light covers in part), glass and
+///   mirrors in raw AOVs; pixels with albedo are averaged whole (their
+///   fireflies are noise to spread);
+/// - its level is `T = max(EXCESS_FLOOR / exposure, EXCESS_RATIO m)`, `m`
+///   the mean luminance of the surfaces with albedo within
+///   [`EXCESS_RADIUS`] pixels (the filters' reach), or no limit where there
+///   are none (the inside of a large emitter or glass pane, whose kernels
+///   reach only itself);
+/// - `excess = keep max(c - T, 0)` per channel, `c` keeps the rest.
+///
+/// So a light stays sharp and bleeds at most `EXCESS_RATIO` times the
+/// level of the walls around it into them; continuous in the albedo.
+pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usize, exposure: f32, excess: &mut [f32]) {
+    let n = w * h;
+    if n == 0 || c.len() < 3 * n || excess.len() < 3 * n || albedo.len() < 3 * n {
         return;
     }
+    let floor = EXCESS_FLOOR / if exposure > 0.0 && exposure.is_finite() { exposure } else { 1.0 };
+    // keep0 = 1 - w, then its 3x3 maximum.
+    let keep0: Vec<f32> = (0..n).map(|p| 1.0 - albedo_weight([albedo[p], albedo[n + p], albedo[2 * n + p]])).collect();
+    if keep0.iter().all(|&k| k == 0.0) {
+        excess[..3 * n].fill(0.0);
+        return;
+    }
+    let mut keep = vec![0.0f32; n];
+    for y in 0..h {
+        for x in 0..w {
+            let mut m = 0.0f32;
+            for yy in y.saturating_sub(1)..(y + 2).min(h) {
+                for xx in x.saturating_sub(1)..(x + 2).min(w) {
+                    m = m.max(keep0[yy * w + xx]);
+                }
+            }
+            keep[y * w + x] = m;
+        }
+    }
+    // Box sums over the reach of (1 - keep) lum(c) and (1 - keep).
+    let r = EXCESS_RADIUS;
+    let mut num = vec![0.0f32; n];
+    let mut den = vec![0.0f32; n];
+    for p in 0..n {
+        let a = 1.0 - keep[p];
+        num[p] = a * luminance(c[p], c[n + p], c[2 * n + p]).max(0.0);
+        den[p] = a;
+    }
+    box_sum(&mut num, w, h, r);
+    box_sum(&mut den, w, h, r);
+    let mut planes: Vec<&mut [f32]> = c[..3 * n].chunks_mut(n).collect();
+    planes.extend(excess[..3 * n].chunks_mut(n));
+    let (keep, num, den) = (&keep, &num, &den);
     pool.planes(planes, 1 << 14, |start, runs| {
         let (cs, ex) = runs.split_at_mut(3);
         for i in 0..cs[0].len() {
             let p = start + i;
-            let keep = 1.0 - albedo_weight([albedo[p], albedo[n + p], albedo[2 * n + p]]);
+            let k = keep[p];
+            let level = if den[p] > 0.5 { (EXCESS_RATIO * num[p] / den[p]).max(floor) } else { f32::INFINITY };
             for ch in 0..3 {
                 let v = cs[ch][i];
-                let e = keep * (v - level).max(0.0);
+                let e = if k > 0.0 { k * (v - level).max(0.0) } else { 0.0 };
                 cs[ch][i] = v - e;
                 ex[ch][i] = e;
             }
         }
     });
+}
+
+/// In place: each value becomes the sum over the `(2r+1)^2` window around
+/// it (clipped at the border), by running sums along rows then columns.
+fn box_sum(v: &mut [f32], w: usize, h: usize, r: usize) {
+    let mut tmp = vec![0.0f64; w.max(h)];
+    for y in 0..h {
+        let row = &mut v[y * w..(y + 1) * w];
+        let mut acc = 0.0f64;
+        for (x, t) in tmp[..w].iter_mut().enumerate() {
+            acc += row[x] as f64;
+            *t = acc;
+        }
+        for (x, o) in row.iter_mut().enumerate() {
+            let hi = tmp[(x + r).min(w - 1)];
+            let lo = if x > r { tmp[x - r - 1] } else { 0.0 };
+            *o = (hi - lo) as f32;
+        }
+    }
+    let mut col = vec![0.0f32; h];
+    for x in 0..w {
+        let mut acc = 0.0f64;
+        for y in 0..h {
+            acc += v[y * w + x] as f64;
+            tmp[y] = acc;
+        }
+        for (y, o) in col.iter_mut().enumerate() {
+            let hi = tmp[(y + r).min(h - 1)];
+            let lo = if y > r { tmp[y - r - 1] } else { 0.0 };
+            *o = (hi - lo) as f32;
+        }
+        for y in 0..h {
+            v[y * w + x] = col[y];
+        }
+    }
 }
 
 /// The normal as a network input, `n / 2 + 1/2`.

@@ -163,8 +163,8 @@ pub fn inputs(
     features::network_inputs(pool, f, "afn", e, &[r, t], d, x, &mut [&mut *c1, &mut *ct])?;
     // The TA image's excess is dropped (`ex` holds it for a moment): the
     // 1-spp image's goes back.
-    features::split_excess(pool, ct, a, e, ex);
-    features::split_excess(pool, c1, a, e, ex);
+    features::split_excess(pool, ct, a, f.width, f.height, e, ex);
+    features::split_excess(pool, c1, a, f.width, f.height, e, ex);
     Ok(e)
 }
 

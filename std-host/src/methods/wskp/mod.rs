@@ -153,7 +153,7 @@ pub fn inputs(
     features::demodulation(pool, a, w, h, d);
     let e = features::exposure(f.require(Buffer::Color, "wskp")?, w, h);
     features::network_inputs(pool, f, "wskp", e, &[t], d, x, &mut [&mut *c])?;
-    features::split_excess(pool, c, a, e, ex);
+    features::split_excess(pool, c, a, w, h, e, ex);
     Ok(e)
 }
 
