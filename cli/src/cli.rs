@@ -298,9 +298,9 @@ struct SettingsCli {
     /// filtering (0: off) [default: 16 with B.*, 6 with one estimate]
     #[arg(long, value_name = "K", value_parser = firefly)]
     firefly_clamp: Option<f32>,
-    /// WSKP: ImportanceNet layers (3 or 6)
-    #[arg(long, value_name = "N", default_value = "6", value_parser = layers, help_heading = "Learned methods")]
-    layers: usize,
+    /// WSKP: ImportanceNet layers (3 or 6) [default: the --weights file's, else 6]
+    #[arg(long, value_name = "N", value_parser = layers, help_heading = "Learned methods")]
+    layers: Option<usize>,
     /// Weights made by 'mcdenoise train' [default: the bundled ones]
     #[arg(long, value_name = "FILE", help_heading = "Learned methods")]
     weights: Option<PathBuf>,
@@ -325,6 +325,18 @@ struct SettingsCli {
     afn_whole_maps: bool,
 }
 
+/// The `layers` recorded in a WSKP weights file, or 6 (no file, another
+/// method's file, or one that cannot be read: opening it again later
+/// reports the fault).
+fn layers_of(weights: Option<&std::path::Path>) -> usize {
+    weights
+        .and_then(|p| mcdenoise::nn::weights::File::read(p).ok())
+        .and_then(|f| f.meta("layers"))
+        .and_then(|l| l.parse().ok())
+        .filter(|&l| l == 3 || l == 6)
+        .unwrap_or(6)
+}
+
 impl SettingsCli {
     fn settings(self) -> Settings {
         let mut s = Settings { threads: default_threads(), ..Settings::default() };
@@ -337,7 +349,7 @@ impl SettingsCli {
         }
         s.phi_color = self.phi_color;
         s.firefly_clamp = self.firefly_clamp;
-        s.layers = self.layers;
+        s.layers = self.layers.unwrap_or_else(|| layers_of(self.weights.as_deref()));
         s.weights = self.weights;
         s.seed = self.seed;
         s.save_state = self.save_state;

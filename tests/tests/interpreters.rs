@@ -111,13 +111,9 @@ fn afn_streamed_inference_equals_its_training_forward() {
             feats.copy_from_slice(&x[6 * n..]);
             expo.fill(e);
         }
-        let mut tr = Trainer::with_nets(
-            vec![(kn.clone(), kp.clone(), (w, h)), (rn.clone(), rp.clone(), (w, h))],
-            1,
-            1e-3,
-            0.0,
-        )
-        .unwrap();
+        let mut tr =
+            Trainer::with_nets(vec![(kn.clone(), kp.clone(), (w, h)), (rn.clone(), rp.clone(), (w, h))], 1, 1e-3, 0.0)
+                .unwrap();
         for wss in tr.workspaces() {
             afn::crop_buffers(wss);
         }

@@ -57,6 +57,8 @@ fn temporal_history_band_must_match_the_colour_band() {
         prev_normal: None,
         prev_position: None,
         prev_history: View::new(&h1, 1, w, h).unwrap(),
+        albedo: None,
+        prev_albedo: None,
     };
     for isa in isas_under_test() {
         for hist_rows in [0, 1, 2] {
@@ -415,7 +417,7 @@ where
 
     // temporal
     let bufs: Vec<(Vec<P::Store>, Shape)> =
-        [(3, w, h), (3, w, h), (3, w, h), (2, w, h), (3, w, h), (3, w, h), (3, w, h), (1, w, h)]
+        [(3, w, h), (3, w, h), (3, w, h), (2, w, h), (3, w, h), (3, w, h), (3, w, h), (1, w, h), (3, w, h), (3, w, h)]
             .into_iter()
             .map(|s| g.buf::<P::Store>(s))
             .collect();
@@ -429,6 +431,8 @@ where
         prev_normal: opt(&mut g, 5),
         prev_position: opt(&mut g, 6),
         prev_history: frac(view(&bufs[7].0, bufs[7].1)),
+        albedo: opt(&mut g, 8),
+        prev_albedo: opt(&mut g, 9),
     };
     let params = TemporalParams {
         pos_limit: cs.vals[5],
@@ -436,6 +440,7 @@ where
         alpha_min: cs.vals[7] / 50.0,
         history_cap: cs.vals[8],
         search_radius: cs.extra,
+        albedo_limit: cs.vals[9],
     };
     for p in [params, TemporalParams::default()] {
         let (mut od, os) = g.buf::<P::Store>((3, w, n));

@@ -233,6 +233,8 @@ fn matrix<P: HostPrecision>() {
                     prev_normal: None,
                     prev_position: None,
                     prev_history: hist.view(),
+                    albedo: None,
+                    prev_albedo: None,
                 };
                 let (mut o, mut hh) = (outp(3, w, h), Planes::<P::Store>::new(1, w, h).with_frac(8));
                 temporal::accumulate::<P>(

@@ -1,7 +1,8 @@
 //! Temporal accumulation against the project's f64 oracle
 //! (`mcdenoise_kit::oracle::temporal`) on inputs the operator registry's
 //! entries do not draw: NaN motion and motion far outside the image, every
-//! pixel's geometry either agreeing or rejected by position or by normal,
+//! pixel's geometry either agreeing or rejected by position, by normal or
+//! by albedo,
 //! history capped, odd sizes and bands of rows, f32 and f16 storage.
 
 use mcdenoise_core::temporal::{self, TemporalInputs, TemporalParams, TemporalPrecision};
@@ -33,6 +34,8 @@ struct Case {
     prev_normal: Img,
     prev_position: Img,
     prev_history: Img,
+    albedo: Img,
+    prev_albedo: Img,
     params: TemporalParams,
 }
 
@@ -46,8 +49,14 @@ fn case(w: usize, h: usize, seed: u64) -> Case {
 /// [`case`] with `ch` colour channels (the geometry stays 3 planes).
 fn case_ch(ch: usize, w: usize, h: usize, seed: u64) -> Case {
     let mut r = Lcg(seed);
-    let params =
-        TemporalParams { pos_limit: 0.5, normal_limit: 0.3, alpha_min: 0.2, history_cap: 16.0, search_radius: 2 };
+    let params = TemporalParams {
+        pos_limit: 0.5,
+        normal_limit: 0.3,
+        alpha_min: 0.2,
+        history_cap: 16.0,
+        search_radius: 2,
+        albedo_limit: 0.3,
+    };
     let mut c = Case {
         ch,
         w,
@@ -60,6 +69,8 @@ fn case_ch(ch: usize, w: usize, h: usize, seed: u64) -> Case {
         prev_normal: Img::zeros(3, w, h),
         prev_position: Img::zeros(3, w, h),
         prev_history: Img::zeros(1, w, h),
+        albedo: Img::zeros(3, w, h),
+        prev_albedo: Img::zeros(3, w, h),
         params,
     };
     for y in 0..h {
@@ -80,14 +91,18 @@ fn case_ch(ch: usize, w: usize, h: usize, seed: u64) -> Case {
             }
             // The previous frame's geometry at this pixel: the same surface
             // moved a little, or another one.
-            let (dp, dn) = match (r.next() * 4.0) as u32 {
-                0 => (1.5, 0.0),   // position rejected
-                1 => (0.0, 0.9),   // normal rejected
-                _ => (0.05, 0.03), // agrees
+            let (dp, dn, da) = match (r.next() * 5.0) as u32 {
+                0 => (1.5, 0.0, 0.0),    // position rejected
+                1 => (0.0, 0.9, 0.0),    // normal rejected
+                2 => (0.0, 0.0, 0.9),    // albedo rejected
+                _ => (0.05, 0.03, 0.03), // agrees
             };
             for ch in 0..3 {
                 *c.prev_position.at_mut(ch, y, x) = (base[ch] + if ch == 0 { dp } else { 0.0 }) as f32;
                 *c.prev_normal.at_mut(ch, y, x) = (n[ch] + if ch == 1 { dn } else { 0.0 }) as f32;
+                let a = r.next();
+                *c.albedo.at_mut(ch, y, x) = a as f32;
+                *c.prev_albedo.at_mut(ch, y, x) = (a + if ch == 2 { da } else { 0.0 }) as f32;
             }
             *c.prev_history.at_mut(0, y, x) = (r.next() * 20.0).floor() as f32;
             let m = match (r.next() * 10.0) as u32 {
@@ -109,6 +124,7 @@ fn oracle(c: &Case, motion: bool) -> (Vec<f64>, Vec<f64>) {
     let (col, nrm, pos, mot) = (c.color.to_f64(), c.normal.to_f64(), c.position.to_f64(), c.motion.to_f64());
     let (pc, pn, pp, ph) =
         (c.prev_color.to_f64(), c.prev_normal.to_f64(), c.prev_position.to_f64(), c.prev_history.to_f64());
+    let (al, pal) = (c.albedo.to_f64(), c.prev_albedo.to_f64());
     let t = TemporalRef {
         color: &col,
         normal: Some(&nrm),
@@ -118,13 +134,23 @@ fn oracle(c: &Case, motion: bool) -> (Vec<f64>, Vec<f64>) {
         prev_normal: Some(&pn),
         prev_position: Some(&pp),
         prev_history: &ph,
+        albedo: Some(&al),
+        prev_albedo: Some(&pal),
         c: c.ch,
         w: c.w,
         h: c.h,
     };
     let p = &c.params;
     let f = |v: f32| v as f64;
-    oracle::temporal(&t, f(p.pos_limit), f(p.normal_limit), f(p.alpha_min), f(p.history_cap), p.search_radius)
+    oracle::temporal(
+        &t,
+        f(p.pos_limit),
+        f(p.normal_limit),
+        f(p.alpha_min),
+        f(p.history_cap),
+        p.search_radius,
+        f(p.albedo_limit),
+    )
 }
 
 /// The kernel in precision `P` over bands of `band` rows: the inputs
@@ -138,11 +164,21 @@ fn kernel<P: TemporalPrecision>(
     load: impl Fn(P::Store) -> f32,
 ) -> (Vec<f32>, Vec<f32>) {
     let (w, h) = (c.w, c.h);
-    let bufs: Vec<Vec<P::Store>> =
-        [&c.color, &c.normal, &c.position, &c.motion, &c.prev_color, &c.prev_normal, &c.prev_position, &c.prev_history]
-            .into_iter()
-            .map(&store)
-            .collect();
+    let bufs: Vec<Vec<P::Store>> = [
+        &c.color,
+        &c.normal,
+        &c.position,
+        &c.motion,
+        &c.prev_color,
+        &c.prev_normal,
+        &c.prev_position,
+        &c.prev_history,
+        &c.albedo,
+        &c.prev_albedo,
+    ]
+    .into_iter()
+    .map(&store)
+    .collect();
     let v = |i: usize, ch: usize| View::new(&bufs[i], ch, w, h).unwrap();
     let inp = TemporalInputs {
         color: v(0, c.ch),
@@ -153,6 +189,8 @@ fn kernel<P: TemporalPrecision>(
         prev_normal: Some(v(5, 3)),
         prev_position: Some(v(6, 3)),
         prev_history: v(7, 1),
+        albedo: Some(v(8, 3)),
+        prev_albedo: Some(v(9, 3)),
     };
     let mut out = vec![P::Store::default(); c.ch * w * h];
     let mut hist = vec![P::Store::default(); w * h];
@@ -228,6 +266,83 @@ fn accumulation_reprojects_every_colour_channel() {
     for ch in [1, 5, 9] {
         for motion in [true, false] {
             check(&case_ch(ch, 13, 7, 40 + ch as u64), motion, 2);
+        }
+    }
+}
+
+/// Fixed point against the oracle run on the inputs as fixed point stores
+/// them (each buffer in a format that holds its range; NaN motion becomes
+/// 0): every path, the albedo test included.
+#[test]
+fn fixed_point_accumulation_matches_the_f64_oracle() {
+    use mcdenoise_core::Fixed;
+    let q = |v: f32, frac: i8| -> i16 {
+        let s = (v as f64 * f64::from(1u32 << frac)).round();
+        if s.is_nan() {
+            0
+        } else {
+            s.clamp(-32767.0, 32767.0) as i16
+        }
+    };
+    for (w, h, seed) in [(9, 5, 3u64), (17, 9, 8), (33, 4, 21)] {
+        for motion in [true, false] {
+            let mut c = case(w, h, seed);
+            // Motion within the format's range (the far-out draws clamp).
+            let fracs: [i8; 10] = [10, 13, 9, 8, 10, 13, 9, 10, 13, 13];
+            let imgs: Vec<&mut Img> = vec![
+                &mut c.color,
+                &mut c.normal,
+                &mut c.position,
+                &mut c.motion,
+                &mut c.prev_color,
+                &mut c.prev_normal,
+                &mut c.prev_position,
+                &mut c.prev_history,
+                &mut c.albedo,
+                &mut c.prev_albedo,
+            ];
+            let mut stored: Vec<Vec<i16>> = Vec::new();
+            for (img, &f) in imgs.into_iter().zip(&fracs) {
+                let s: Vec<i16> = img.data.iter().map(|&v| q(v, f)).collect();
+                // The oracle sees what fixed point stores.
+                for (d, &v) in img.data.iter_mut().zip(&s) {
+                    *d = v as f32 / (1u32 << f) as f32;
+                }
+                stored.push(s);
+            }
+            let (eo, eh) = oracle(&c, motion);
+            let v = |i: usize, ch: usize| View::new(&stored[i], ch, w, h).unwrap().with_frac(fracs[i]);
+            let inp = TemporalInputs {
+                color: v(0, 3),
+                normal: Some(v(1, 3)),
+                position: Some(v(2, 3)),
+                motion: motion.then(|| v(3, 2)),
+                prev_color: v(4, 3),
+                prev_normal: Some(v(5, 3)),
+                prev_position: Some(v(6, 3)),
+                prev_history: v(7, 1),
+                albedo: Some(v(8, 3)),
+                prev_albedo: Some(v(9, 3)),
+            };
+            let mut out = vec![0i16; 3 * w * h];
+            let mut hist = vec![0i16; w * h];
+            temporal::accumulate::<Fixed>(
+                mcdenoise_core::Isa::Scalar,
+                &inp,
+                &c.params,
+                &mut ViewMut::new(&mut out, 3, w, h).unwrap().with_frac(10),
+                &mut ViewMut::new(&mut hist, 1, w, h).unwrap().with_frac(10),
+                0,
+            )
+            .unwrap();
+            for (i, (&a, &b)) in out.iter().zip(&eo).enumerate() {
+                let a = a as f64 / 1024.0;
+                assert!((a - b).abs() <= 4e-3, "{w}x{h} motion {motion}: colour {i}: {a} vs oracle {b}");
+            }
+            for (i, (&a, &b)) in hist.iter().zip(&eh).enumerate() {
+                let a = a as f64 / 1024.0;
+                assert!((a - b).abs() <= 4e-3, "{w}x{h} motion {motion}: history {i}: {a} vs oracle {b}");
+            }
         }
     }
 }

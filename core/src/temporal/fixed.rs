@@ -29,7 +29,11 @@ fn limit2(l: f32, frac: i8) -> i64 {
     q.saturating_mul(q)
 }
 
-fn agrees(inp: &TemporalInputs<'_, i16>, lp: i64, ln: i64, y: usize, x: usize, py: usize, px: usize) -> bool {
+/// The squared limits of the geometry tests, each in its buffer's format:
+/// position, normal, albedo.
+type Limits = (i64, i64, i64);
+
+fn agrees(inp: &TemporalInputs<'_, i16>, (lp, ln, la): Limits, y: usize, x: usize, py: usize, px: usize) -> bool {
     if let (Some(a), Some(b)) = (&inp.position, &inp.prev_position) {
         if dist2(a, y, x, b, py, px) >= lp {
             return false;
@@ -37,6 +41,11 @@ fn agrees(inp: &TemporalInputs<'_, i16>, lp: i64, ln: i64, y: usize, x: usize, p
     }
     if let (Some(a), Some(b)) = (&inp.normal, &inp.prev_normal) {
         if dist2(a, y, x, b, py, px) >= ln {
+            return false;
+        }
+    }
+    if let (Some(a), Some(b)) = (&inp.albedo, &inp.prev_albedo) {
+        if dist2(a, y, x, b, py, px) >= la {
             return false;
         }
     }
@@ -53,6 +62,8 @@ pub(crate) fn accumulate(
     let (w, h, ch) = (inp.color.width(), inp.color.height(), inp.color.channels());
     let lp = inp.position.as_ref().map_or(0, |v| limit2(p.pos_limit, v.frac()));
     let ln = inp.normal.as_ref().map_or(0, |v| limit2(p.normal_limit, v.frac()));
+    let la = inp.albedo.as_ref().map_or(0, |v| limit2(p.albedo_limit, v.frac()));
+    let lim = (lp, ln, la);
     let (fc, fpc, fh) = (inp.color.frac() as i32, inp.prev_color.frac() as i32, inp.prev_history.frac() as i32);
     let (fo, fho) = (color.frac() as i32, history.frac() as i32);
     let amin = (p.alpha_min.clamp(0.0, 1.0) * ONE as f32) as i64;
@@ -84,7 +95,7 @@ pub(crate) fn accumulate(
                                 continue;
                             }
                             let (py, px) = (py as usize, px as usize);
-                            if agrees(inp, lp, ln, y, x, py, px) {
+                            if agrees(inp, lim, y, x, py, px) {
                                 take(py, px, wt);
                             }
                         }
@@ -102,7 +113,7 @@ pub(crate) fn accumulate(
                     }
                 }
                 if let Some((_, py, px)) = best {
-                    if agrees(inp, lp, ln, y, x, py, px) {
+                    if agrees(inp, lim, y, x, py, px) {
                         take(py, px, ONE);
                     }
                 }

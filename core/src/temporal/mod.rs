@@ -10,8 +10,13 @@
 //! 2. With motion, the four pixels around the previous position are the
 //!    bilinear taps. A tap counts only if it is inside the image and its
 //!    geometry agrees: `|pos_prev - pos|^2 < pos_limit^2` and
-//!    `|n_prev - n|^2 < normal_limit^2` (each test only when both buffers are
-//!    present). Accepted taps are renormalised by their bilinear weights.
+//!    `|n_prev - n|^2 < normal_limit^2` and `|a_prev - a|^2 < albedo_limit^2`
+//!    for the albedo `a` (each test only when both buffers are present).
+//!    Accepted taps are renormalised by their bilinear weights. The albedo
+//!    test keeps an emitter seen directly (albedo 0) and the lit surface
+//!    it lies on apart: their positions and normals may agree, and a
+//!    bilinear tap across the light's outline would otherwise smear it into
+//!    the surface (and the surface into it) as the camera moves.
 //! 3. No accepted tap: the pixel restarts, `out = colour`, history 0. Else with
 //!    the reprojected history `n` (bilinear over the accepted taps) and
 //!    colour `prev`: `alpha = max(1 / (n + 1), alpha_min)`,
@@ -45,11 +50,20 @@ pub struct TemporalParams {
     pub history_cap: f32,
     /// Search radius (pixels) for reprojection by world position without motion vectors.
     pub search_radius: usize,
+    /// Largest accepted distance between albedos (RGB).
+    pub albedo_limit: f32,
 }
 
 impl Default for TemporalParams {
     fn default() -> Self {
-        TemporalParams { pos_limit: 0.01, normal_limit: 0.3, alpha_min: 0.2, history_cap: 64.0, search_radius: 2 }
+        TemporalParams {
+            pos_limit: 0.01,
+            normal_limit: 0.3,
+            alpha_min: 0.2,
+            history_cap: 64.0,
+            search_radius: 2,
+            albedo_limit: 0.3,
+        }
     }
 }
 
@@ -70,6 +84,10 @@ pub struct TemporalInputs<'a, T> {
     pub prev_normal: Option<View<'a, T>>,
     /// The previous frame's position, if known.
     pub prev_position: Option<View<'a, T>>,
+    /// Current albedo (3 planes), if known.
+    pub albedo: Option<View<'a, T>>,
+    /// The previous frame's albedo, if known.
+    pub prev_albedo: Option<View<'a, T>>,
     /// The previous history counts (1 plane).
     pub prev_history: View<'a, T>,
 }
@@ -146,6 +164,8 @@ pub fn accumulate<P: TemporalPrecision>(
         ("motion", inp.motion, 2),
         ("previous normal", inp.prev_normal, 3),
         ("previous position", inp.prev_position, 3),
+        ("albedo", inp.albedo, 3),
+        ("previous albedo", inp.prev_albedo, 3),
     ] {
         if let Some(v) = v {
             check_shape(what, plane(c), v.shape())?;
@@ -157,7 +177,7 @@ pub fn accumulate<P: TemporalPrecision>(
             expected: "motion vectors, or current and previous world positions",
         });
     }
-    if !(params.pos_limit >= 0.0 && params.normal_limit >= 0.0) {
+    if !(params.pos_limit >= 0.0 && params.normal_limit >= 0.0 && params.albedo_limit >= 0.0) {
         return Err(Error::BadParameter { what: "temporal limits", expected: "non-negative numbers" });
     }
     if !(params.alpha_min > 0.0 && params.alpha_min <= 1.0) {

@@ -74,6 +74,10 @@ pub struct TemporalRef<'a> {
     pub prev_position: Option<&'a [f64]>,
     /// Previous history.
     pub prev_history: &'a [f64],
+    /// Current albedo.
+    pub albedo: Option<&'a [f64]>,
+    /// Previous albedo.
+    pub prev_albedo: Option<&'a [f64]>,
     /// Colour planes.
     pub c: usize,
     /// Width.
@@ -86,8 +90,8 @@ pub struct TemporalRef<'a> {
 /// bilinear reprojection by motion, or (without motion) the previous pixel
 /// within `radius` whose position is closest (first in row-major order on a
 /// tie) taken whole; a tap counts when inside the image and, where both
-/// buffers exist, `|dpos|^2 < pos_limit^2` and `|dn|^2 < normal_limit^2`;
-/// accepted taps renormalised. No tap: the colour, history 0; else
+/// buffers exist, `|dpos|^2 < pos_limit^2`, `|dn|^2 < normal_limit^2` and
+/// `|dalbedo|^2 < albedo_limit^2`; accepted taps renormalised. No tap: the colour, history 0; else
 /// `alpha = max(1/(n+1), alpha_min)` and history `min(n + 1, cap)`.
 /// Returns the colour (`c` planes) and the history (1 plane).
 pub fn temporal(
@@ -97,6 +101,7 @@ pub fn temporal(
     alpha_min: f64,
     history_cap: f64,
     radius: usize,
+    albedo_limit: f64,
 ) -> (Vec<f64>, Vec<f64>) {
     let (c, w, h) = (t.c, t.w, t.h);
     let plane = w * h;
@@ -112,7 +117,11 @@ pub fn temporal(
             (Some(a), Some(b)) => d2(a, p, b, q) < normal_limit * normal_limit,
             _ => true,
         };
-        pos_ok && n_ok
+        let a_ok = match (t.albedo, t.prev_albedo) {
+            (Some(a), Some(b)) => d2(a, p, b, q) < albedo_limit * albedo_limit,
+            _ => true,
+        };
+        pos_ok && n_ok && a_ok
     };
     let mut out = vec![0.0; c * plane];
     let mut hist = vec![0.0; plane];

@@ -28,6 +28,8 @@ fn k_temporal<P: HostPrecision>(
         prev_normal: None,
         prev_position: None,
         prev_history: a.ins[3],
+        albedo: None,
+        prev_albedo: None,
     };
     temporal::accumulate::<P>(a.isa, &inp, &temporal_params(), c, hist, y0)
 }
@@ -66,6 +68,8 @@ fn k_temporal_reject<P: HostPrecision>(
         prev_normal: Some(a.ins[7]),
         prev_position: Some(a.ins[5]),
         prev_history: a.ins[3],
+        albedo: None,
+        prev_albedo: None,
     };
     temporal::accumulate::<P>(a.isa, &inp, &temporal_reject_params(), c, hist, y0)
 }
@@ -99,6 +103,8 @@ fn k_temporal_search<P: HostPrecision>(
         prev_normal: None,
         prev_position: Some(a.ins[4]),
         prev_history: a.ins[2],
+        albedo: None,
+        prev_albedo: None,
     };
     temporal::accumulate::<P>(a.isa, &inp, &temporal_search_params(), c, hist, y0)
 }
@@ -145,6 +151,8 @@ fn o_temporal_paths(i: &Inputs, search: bool) -> (Vec<f64>, Vec<f64>) {
             prev_normal: None,
             prev_position: Some(&ppos),
             prev_history: &hist,
+            albedo: None,
+            prev_albedo: None,
             c: 3,
             w: i.w,
             h: i.h,
@@ -160,6 +168,8 @@ fn o_temporal_paths(i: &Inputs, search: bool) -> (Vec<f64>, Vec<f64>) {
             prev_normal: Some(&pn),
             prev_position: Some(&blocks),
             prev_history: &hist,
+            albedo: None,
+            prev_albedo: None,
             c: 3,
             w: i.w,
             h: i.h,
@@ -167,7 +177,15 @@ fn o_temporal_paths(i: &Inputs, search: bool) -> (Vec<f64>, Vec<f64>) {
         (temporal_reject_params(), t)
     };
     let f = |v: f32| v as f64;
-    oracle::temporal(&t, f(p.pos_limit), f(p.normal_limit), f(p.alpha_min), f(p.history_cap), p.search_radius)
+    oracle::temporal(
+        &t,
+        f(p.pos_limit),
+        f(p.normal_limit),
+        f(p.alpha_min),
+        f(p.history_cap),
+        p.search_radius,
+        f(p.albedo_limit),
+    )
 }
 
 /// The temporal entries of [`ops`](super::ops), in report order.

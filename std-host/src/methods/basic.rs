@@ -93,6 +93,7 @@ pub struct TemporalAccumulation<P: HostPrecision> {
     use_normal: bool,
     use_position: bool,
     use_motion: bool,
+    use_albedo: bool,
     prev: Option<History<P>>,
 }
 
@@ -101,6 +102,7 @@ struct History<P: HostPrecision> {
     hist: Planes<P::Store>,
     normal: Option<Planes<P::Store>>,
     position: Option<Planes<P::Store>>,
+    albedo: Option<Planes<P::Store>>,
 }
 
 impl<P: HostPrecision> TemporalAccumulation<P> {
@@ -110,6 +112,7 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
         let use_motion = first.has(Buffer::Motion);
         let use_position = first.has(Buffer::Position);
         let use_normal = first.has(Buffer::Normal);
+        let use_albedo = first.has(Buffer::Albedo);
         if required && !use_motion && !use_position {
             return Err(HostError::MissingChannel {
                 path: first.path.clone(),
@@ -129,8 +132,11 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
         if !use_normal {
             plan.skipped.push(("normal test", "no normal".into()));
         }
+        if !use_albedo {
+            plan.skipped.push(("albedo test", "no albedo".into()));
+        }
         let params = TemporalParams { pos_limit: POSITION_TOLERANCE * scene_scale(first), ..TemporalParams::default() };
-        Ok(TemporalAccumulation { plan, params, use_normal, use_position, use_motion, prev: None })
+        Ok(TemporalAccumulation { plan, params, use_normal, use_position, use_motion, use_albedo, prev: None })
     }
 
     /// Memory per frame (see [`crate::runtime::memory`]), replaying [`Self::step`]
@@ -151,10 +157,11 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
         let (s, x) = (store_bytes::<P>(), P::FORMAT_COPY_BYTES);
         let has = |b: Buffer| u64::from(info.has(b));
         let (normal, position, motion) = (has(Buffer::Normal), has(Buffer::Position), has(Buffer::Motion));
-        let history = 4 * s + 3 * s * normal + 3 * s * position;
+        let albedo = has(Buffer::Albedo);
+        let history = 4 * s + 3 * s * (normal + position + albedo);
         l.alloc(history);
         l.temp(3 * x).alloc(3 * s); // colour (fixed point: a copy of |v| picks the format)
-        l.alloc(3 * s * normal + 3 * s * position + 2 * s * motion);
+        l.alloc(3 * s * (normal + position + albedo) + 2 * s * motion);
         l.alloc(4 * s); // accumulated colour, history counts
         l.free(history).free(3 * s + 2 * s * motion);
         history
@@ -168,13 +175,14 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
         let color =
             t.time("encode", || enc(Buffer::Color, Kind::Image)).ok_or_else(|| HostError::bad(&f.path, "no colour"))?;
         let normal = if self.use_normal { enc(Buffer::Normal, Kind::Unit) } else { None };
+        let albedo = if self.use_albedo { enc(Buffer::Albedo, Kind::Unit) } else { None };
         let position = if self.use_position { enc(Buffer::Position, Kind::Plain) } else { None };
         let motion = if self.use_motion { enc(Buffer::Motion, Kind::Plain) } else { None };
         if (self.use_motion && motion.is_none()) || (self.use_position && position.is_none()) {
             return Err(HostError::bad(&f.path, "lacks a buffer the first frame of the sequence had"));
         }
         let next = match self.prev.take() {
-            None => History { color, hist: Planes::new(1, w, h).with_frac(HISTORY_FRAC), normal, position },
+            None => History { color, hist: Planes::new(1, w, h).with_frac(HISTORY_FRAC), normal, position, albedo },
             Some(prev) => {
                 let mut out = Planes::new(3, w, h).with_frac(color.frac);
                 let mut hist = Planes::new(1, w, h).with_frac(HISTORY_FRAC);
@@ -187,6 +195,8 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
                     prev_normal: prev.normal.as_ref().map(|p| p.view()),
                     prev_position: prev.position.as_ref().map(|p| p.view()),
                     prev_history: prev.hist.view(),
+                    albedo: albedo.as_ref().map(|p| p.view()),
+                    prev_albedo: prev.albedo.as_ref().map(|p| p.view()),
                 };
                 let params = self.params;
                 let isa = ctx.isa;
@@ -195,7 +205,7 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
                         temporal::accumulate::<P>(isa, &inp, &params, band, hb, y0)
                     })
                 })?;
-                History { color: out, hist, normal, position }
+                History { color: out, hist, normal, position, albedo }
             }
         };
         self.prev = Some(next);

@@ -62,7 +62,7 @@ use crate::runtime::par::Pool;
 /// The input transform's name and version, recorded in every weights file
 /// of a learned method (metadata `transform`): weights trained under one
 /// transform are refused under another.
-pub const TRANSFORM: &str = "mcdenoise-features-4";
+pub const TRANSFORM: &str = "mcdenoise-features-5";
 
 /// The albedo (largest channel) from which a pixel is fully demodulated;
 /// below it the factor blends towards 1 (radiance).
@@ -80,6 +80,12 @@ pub const EXPOSURE_KEY: f32 = 0.18;
 /// key), above which a pixel without albedo keeps its irradiance out of
 /// the learned filters ([`split_excess`]).
 pub const EXCESS_FLOOR: f32 = 1.0;
+/// A pixel whose albedo is under `1 - PARTIAL_FROM` of its 3x3 neighbours'
+/// largest starts to count as covered in part by an emitter (a light one or
+/// two pixels thin has no pixel without albedo), fully under `1 - 2
+/// PARTIAL_FROM`; on a plain surface such a pixel's irradiance stays under
+/// the level and nothing changes.
+pub const PARTIAL_FROM: f32 = 0.25;
 /// ... and the multiple of the surrounding surfaces' level above which.
 pub const EXCESS_RATIO: f32 = 4.0;
 /// The reach of the learned filters (WSKP's 13x13 windows, AFN's 7x7 at
@@ -262,9 +268,12 @@ pub fn transfer(x: f32) -> f32 {
 ///
 /// - a pixel takes part where it or a 3x3 neighbour has no albedo to speak
 ///   of (`keep = max over 3x3 of 1 - w`, [`albedo_weight`]): emitters seen
-///   directly, their outline (pixels a light covers in part), glass and
-///   mirrors in raw AOVs; pixels with albedo are averaged whole (their
-///   fireflies are noise to spread);
+///   directly, their outline, glass and mirrors in raw AOVs; and where a
+///   light covers it in part (its albedo well under its neighbours',
+///   [`PARTIAL_FROM`], beside another such pixel at least half as bright:
+///   a light one or two pixels thin, which has no pixel without albedo).
+///   Other pixels are averaged whole (their fireflies are noise to spread,
+///   and a firefly is alone);
 /// - its level is `T = max(EXCESS_FLOOR / exposure, EXCESS_RATIO m)`, `m`
 ///   the mean luminance of the surfaces with albedo within
 ///   [`EXCESS_RADIUS`] pixels (the filters' reach), or no limit where there
@@ -280,8 +289,48 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
         return;
     }
     let floor = EXCESS_FLOOR / if exposure > 0.0 && exposure.is_finite() { exposure } else { 1.0 };
-    // keep0 = 1 - w, then its 3x3 maximum.
-    let keep0: Vec<f32> = (0..n).map(|p| 1.0 - albedo_weight([albedo[p], albedo[n + p], albedo[2 * n + p]])).collect();
+    // keep0 = 1 - w, or the part of a pixel a thin emitter covers (its
+    // albedo well under its neighbours'), then the 3x3 maximum.
+    let amax: Vec<f32> = (0..n).map(|p| albedo[p].max(albedo[n + p]).max(albedo[2 * n + p]).clamp(0.0, 1.0)).collect();
+    let none: Vec<f32> = (0..n).map(|p| 1.0 - albedo_weight([albedo[p], albedo[n + p], albedo[2 * n + p]])).collect();
+    let mut covered = vec![0.0f32; n];
+    for y in 0..h {
+        for x in 0..w {
+            let mut m = 0.0f32;
+            for yy in y.saturating_sub(1)..(y + 2).min(h) {
+                for xx in x.saturating_sub(1)..(x + 2).min(w) {
+                    m = m.max(amax[yy * w + xx]);
+                }
+            }
+            let p = y * w + x;
+            if m > 0.0 {
+                covered[p] = ((1.0 - amax[p] / m - PARTIAL_FROM) / PARTIAL_FROM).clamp(0.0, 1.0);
+            }
+        }
+    }
+    // A covered pixel counts only beside another emitter pixel at least half
+    // as bright (a light is a line or a region; a firefly on the dark side
+    // of a texture's edge is alone, and is averaged).
+    let lum: Vec<f32> = (0..n).map(|p| luminance(c[p], c[n + p], c[2 * n + p]).max(0.0)).collect();
+    let mut keep0 = none.clone();
+    for y in 0..h {
+        for x in 0..w {
+            let p = y * w + x;
+            if covered[p] <= keep0[p] {
+                continue;
+            }
+            let mut supported = false;
+            for yy in y.saturating_sub(1)..(y + 2).min(h) {
+                for xx in x.saturating_sub(1)..(x + 2).min(w) {
+                    let q = yy * w + xx;
+                    supported |= q != p && (none[q] > 0.0 || covered[q] > 0.0) && 2.0 * lum[q] >= lum[p];
+                }
+            }
+            if supported {
+                keep0[p] = covered[p];
+            }
+        }
+    }
     if keep0.iter().all(|&k| k == 0.0) {
         excess[..3 * n].fill(0.0);
         return;
@@ -292,10 +341,11 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
             let mut m = 0.0f32;
             for yy in y.saturating_sub(1)..(y + 2).min(h) {
                 for xx in x.saturating_sub(1)..(x + 2).min(w) {
-                    m = m.max(keep0[yy * w + xx]);
+                    m = m.max(none[yy * w + xx]);
                 }
             }
-            keep[y * w + x] = m;
+            // The outline of a pixel without albedo; a covered pixel itself.
+            keep[y * w + x] = m.max(keep0[y * w + x]);
         }
     }
     // Box sums over the reach of (1 - keep) lum(c) and (1 - keep).

@@ -85,7 +85,7 @@ impl MethodKind {
         };
         match self {
             MethodKind::None => set(&[B::Color]),
-            MethodKind::Ta => set(&[B::Color, B::Normal, B::Depth, B::Position, B::Motion]),
+            MethodKind::Ta => set(&[B::Color, B::Albedo, B::Normal, B::Depth, B::Position, B::Motion]),
             MethodKind::Atrous | MethodKind::SureAtrous => {
                 set(&[B::Color, B::ColorB, B::Albedo, B::Normal, B::Depth, B::Position])
             }

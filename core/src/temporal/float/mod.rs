@@ -40,6 +40,11 @@ fn agrees<S: FloatElement, A: Real>(
             return false;
         }
     }
+    if let (Some(a), Some(b)) = (&inp.albedo, &inp.prev_albedo) {
+        if !(dist2::<S, A>(a, y, x, b, py, px) < A::of(p.albedo_limit) * A::of(p.albedo_limit)) {
+            return false;
+        }
+    }
     true
 }
 

@@ -551,6 +551,10 @@ impl Denoiser for Cross {
                 prev_normal: prev.normal.as_deref().map(|v| View::new(v, 3, w, h)).transpose()?,
                 prev_position: prev.position.as_deref().map(|v| View::new(v, 3, w, h)).transpose()?,
                 prev_history: View::new(&bufs.big, 1, w, h)?,
+                // The pilots' temporal screening rejects what the albedo
+                // test would (an emitter's outline) and more.
+                albedo: None,
+                prev_albedo: None,
             };
             let params = self.params;
             ctx.pool.bands2(
