@@ -86,6 +86,10 @@ pub const EXCESS_FLOOR: f32 = 1.0;
 /// PARTIAL_FROM`; on a plain surface such a pixel's irradiance stays under
 /// the level and nothing changes.
 pub const PARTIAL_FROM: f32 = 0.25;
+/// A pixel above the floor whose 3x3 neighbourhood's luminance is at least
+/// this fraction of its largest counts as an emitter even with albedo
+/// (Mitsuba's Cornell box gives its light the walls' white BSDF).
+pub const SMOOTH: f32 = 0.75;
 /// ... and the multiple of the surrounding surfaces' level above which.
 pub const EXCESS_RATIO: f32 = 4.0;
 /// The reach of the learned filters (WSKP's 13x13 windows, AFN's 7x7 at
@@ -331,6 +335,30 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
             }
         }
     }
+    // An emitter with albedo (a light's own diffuse surface): bright and
+    // smooth, its 3x3 neighbourhood within SMOOTH of its largest value. Noisy
+    // surfaces are not; a smooth one's excess stays at its pixel as
+    // accurate as it came.
+    let mut core = none.clone();
+    for y in 0..h {
+        for x in 0..w {
+            let p = y * w + x;
+            if lum[p] <= floor || core[p] >= 1.0 {
+                continue;
+            }
+            let (mut lo, mut hi) = (f32::INFINITY, 0.0f32);
+            for yy in y.saturating_sub(1)..(y + 2).min(h) {
+                for xx in x.saturating_sub(1)..(x + 2).min(w) {
+                    lo = lo.min(lum[yy * w + xx]);
+                    hi = hi.max(lum[yy * w + xx]);
+                }
+            }
+            if lo >= SMOOTH * hi {
+                core[p] = 1.0;
+                keep0[p] = 1.0;
+            }
+        }
+    }
     if keep0.iter().all(|&k| k == 0.0) {
         excess[..3 * n].fill(0.0);
         return;
@@ -341,10 +369,10 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
             let mut m = 0.0f32;
             for yy in y.saturating_sub(1)..(y + 2).min(h) {
                 for xx in x.saturating_sub(1)..(x + 2).min(w) {
-                    m = m.max(none[yy * w + xx]);
+                    m = m.max(core[yy * w + xx]);
                 }
             }
-            // The outline of a pixel without albedo; a covered pixel itself.
+            // The outline of an emitter; a covered pixel itself.
             keep[y * w + x] = m.max(keep0[y * w + x]);
         }
     }
