@@ -689,6 +689,22 @@ impl Denoiser for Cross {
                 bufs.out[c * n + t0 * w..c * n + t1 * w].copy_from_slice(&o[c * w * rows..(c + 1) * w * rows]);
             }
         }
+        // A regression extrapolates: the output is held under the brightest
+        // input sample within the screening window (per channel, in log1p
+        // colour), so that a light or a firefly is never brightened.
+        for c in 0..3 {
+            let (src, rest) = bufs.window.split_at_mut(n);
+            let (tmin, rest) = rest.split_at_mut(n);
+            let (tmax, rest) = rest.split_at_mut(n);
+            let (mn, mx) = rest.split_at_mut(n);
+            for ((s, &a), &b) in src.iter_mut().zip(&bufs.a[c * n..(c + 1) * n]).zip(&bufs.b[c * n..(c + 1) * n]) {
+                *s = a.max(b);
+            }
+            window_range(&ctx.pool, src, w, h, SCREEN_WINDOW / 2, tmin, tmax, mn, mx);
+            for (o, &m) in bufs.out[(6 + c) * n..(7 + c) * n].iter_mut().zip(mx.iter()) {
+                *o = o.min(m);
+            }
+        }
         // Keep what the next frame reprojects.
         let mut colors = vec![0.0f32; 9 * n];
         colors[..3 * n].copy_from_slice(&bufs.out[6 * n..9 * n]);
