@@ -89,7 +89,11 @@ def main():
     p.add_argument('--only', help='comma-separated method labels')
     p.add_argument('--summary', default='input,ta,atrous,sure-atrous,wskp3 f32,wskp6 f32,afn f32,cross,oidn fast,oidn high',
                    help='methods of the summary table (PSNR and relMSE per sequence)')
+    p.add_argument('--sheets', default='input,ta,wskp3 f32,wskp6 f32,afn f32,oidn high',
+                   help='methods of the contact sheet written per sequence (OUT_DIR/sheet_SEQ.png: the last '
+                        'frame of each, then the reference; needs tools/.venv for OpenEXR); empty: none')
     a = p.parse_args()
+    sheet_py = os.path.join(HERE, '.venv', 'bin', 'python')
     py = os.path.join(HERE, '.venv-peers', 'bin', 'python')
     seqs = sorted(d for d in os.listdir(a.test) if os.path.isdir(os.path.join(a.test, d)))
     results = {}
@@ -109,9 +113,24 @@ def main():
                 else:
                     run([py, os.path.join(HERE, 'torch_wskp.py'), 'denoise'] + args + [sd, '-o', od])
                 j = score(os.path.join(sd, 'ref'), od)
+                if a.sheets and label in a.sheets.split(','):
+                    last = sorted(f for f in os.listdir(od) if f.endswith('.exr'))[-1]
+                    keep = os.path.join(a.output, 'frames', seq)
+                    os.makedirs(keep, exist_ok=True)
+                    with open(os.path.join(od, last), 'rb') as src, \
+                            open(os.path.join(keep, label.replace(' ', '_') + '.exr'), 'wb') as dst:
+                        dst.write(src.read())
                 results[seq][label] = {'mean': j['mean'], 'psnr': [f['psnr'] for f in j['files']]}
                 print('%-16s %-16s PSNR %6.2f dB  SSIM %.4f  relMSE %.5f  flicker %s' % (
                     seq, label, j['mean']['psnr'], j['mean']['ssim'], j['mean']['relmse'], j['mean']['flicker']), flush=True)
+            if a.sheets and os.path.exists(sheet_py):
+                keep = os.path.join(a.output, 'frames', seq)
+                labels = [l for l in a.sheets.split(',') if os.path.exists(os.path.join(keep, l.replace(' ', '_') + '.exr'))]
+                refs = sorted(f for f in os.listdir(os.path.join(sd, 'ref')) if f.endswith('.exr'))
+                files = [os.path.join(keep, l.replace(' ', '_') + '.exr') for l in labels] + [os.path.join(sd, 'ref', refs[-1])]
+                out = os.path.join(a.output, 'sheet_%s.png' % seq)
+                run([sheet_py, os.path.join(HERE, 'contact_sheet.py'), out] + files + ['--cols', '4', '--scale', '2'])
+                print('%s: %s + reference' % (out, ', '.join(labels)), flush=True)
     with open(os.path.join(a.output, 'quality.json'), 'w') as f:
         json.dump(results, f, indent=1)
     lines = []

@@ -253,7 +253,7 @@ enum Sub {
     #[command(
         after_help = "INPUT contract: one multichannel OpenEXR file per frame with R,G,B (noisy radiance) and, \
                             when the renderer has them, albedo.R/G/B, normal.X/Y/Z, depth.Z, position.X/Y/Z, \
-                            motion.X/Y and B.R,B.G,B.B (a second estimate); see the README."
+                            motion.X/Y and B.R,B.G,B.B (a second estimate); see docs/exr.md."
     )]
     Denoise(DenoiseCli),
     /// Train a learned method's weights on rendered sequences

@@ -1,5 +1,5 @@
 //! The stability contract at the extremes, per operator and precision
-//! (README, "Stability contract"):
+//! (docs/contracts.md, "Stability contract"):
 //! 1. A frame's values are sanitised first (`Map::Sanitize`: NaN -> 0,
 //!    ±inf -> ±limit; the host does this on load) and stored in the
 //!    precision (f16 saturates at ±65504, fixed point at its format's

@@ -80,7 +80,7 @@ pub const MAX_GROUPS: usize = 2;
 pub struct AtrousParams {
     /// Colour: multiple of the noise variance a squared colour difference is
     /// compared with at level 0. The default, 64, is where plain à-trous
-    /// has its lowest error on the bundled sample (a sweep is in the README).
+    /// has its lowest error on the bundled sample (a sweep is in docs/quality.md).
     pub phi_color: f32,
     /// Normal difference scale.
     pub sigma_normal: f32,

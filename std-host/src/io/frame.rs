@@ -1,5 +1,5 @@
 //! Frames in the input contract: one multichannel OpenEXR file per frame,
-//! channels found by name (see the README's input contract).
+//! channels found by name (docs/exr.md).
 //!
 //! Loading reads the header first and refuses sizes over [`Limits`] before
 //! any pixel buffer is allocated ([`Frame::open`] stops there, so a caller

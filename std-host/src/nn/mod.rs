@@ -777,12 +777,24 @@ fn two<T>(v: &mut [T], a: usize, b: usize) -> (&mut T, &mut T) {
 }
 
 /// What one training step measured.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct StepStats {
     /// The batch's mean loss.
     pub loss: f32,
     /// The gradient's L2 norm before clipping.
     pub grad_norm: f32,
+    /// The crops whose loss was not finite (in crop order); a step with any,
+    /// or with a gradient that is not finite, leaves the parameters and
+    /// Adam's state as they were.
+    pub bad_crops: Vec<usize>,
+}
+
+impl StepStats {
+    /// Whether the step changed nothing (a crop's loss or the gradient not
+    /// finite).
+    pub fn skipped(&self) -> bool {
+        !self.bad_crops.is_empty() || !self.grad_norm.is_finite()
+    }
 }
 
 /// What a model's head sees of the networks being trained: to run the
@@ -954,8 +966,14 @@ impl Trainer {
                 .collect()
         });
         let mut loss = 0.0f64;
-        for l in losses {
-            loss += l? as f64;
+        let mut bad_crops = Vec::new();
+        for (i, l) in losses.into_iter().enumerate() {
+            let l = l?;
+            if l.is_finite() {
+                loss += l as f64;
+            } else {
+                bad_crops.push(i);
+            }
         }
         // Sum the crops' gradients in crop order (the result does not depend
         // on which thread ran which crop), then onto the branch parameters.
@@ -976,12 +994,13 @@ impl Trainer {
             }
         }
         let grad_norm = adam::clip_norm(&mut self.grad, if update { self.clip } else { 0.0 });
-        if update {
+        if update && bad_crops.is_empty() && grad_norm.is_finite() {
             self.adam.step(&mut self.params, &self.grad);
             for (k, n) in self.nets.iter().enumerate() {
                 self.merged[k].update(n, &self.params[self.offsets[k]..self.offsets[k + 1]]);
             }
         }
-        Ok(StepStats { loss: (loss / self.workspaces.len().max(1) as f64) as f32, grad_norm })
+        let good = (self.workspaces.len() - bad_crops.len()).max(1);
+        Ok(StepStats { loss: (loss / good as f64) as f32, grad_norm, bad_crops })
     }
 }

@@ -442,15 +442,21 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     // (each estimate's accumulation and features) are made.
     let pool = crate::runtime::par::Pool::new(a.threads).map_err(HostError::Usage)?;
     let mut samples = Vec::new();
+    // Where each sample comes from (named when a step is skipped).
+    let mut origins: Vec<String> = Vec::new();
     let mut nseqs = 0;
     for (k, d) in dirs.iter().enumerate() {
         let mut seq = load_sequence(d)?;
+        let n0 = samples.len();
         model.samples(&seq, &pool, a.isa, &mut samples)?;
+        origins.extend((0..samples.len() - n0).map(|j| format!("{} frame {j}", d.display())));
         if a.estimates > 1 && seq.frames.iter().all(|f| f.has(Buffer::ColorB)) {
             for f in &mut seq.frames {
                 f.swap_estimates();
             }
+            let n0 = samples.len();
             model.samples(&seq, &pool, a.isa, &mut samples)?;
+            origins.extend((0..samples.len() - n0).map(|j| format!("{} frame {j} (estimates swapped)", d.display())));
         }
         nseqs += 1;
         if (k + 1) % 50 == 0 {
@@ -545,6 +551,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         Ok(())
     };
     let mut ema: Option<f32> = None;
+    let mut skipped = 0u64;
     let (isa, loss, scale) = (a.isa, a.loss, 1.0 / a.batch as f32);
     let validate_now = |tr: &Trainer| -> Result<f64> {
         let make = |f: &Frame| model.denoiser(f, &tr.nets, &tr.params);
@@ -573,7 +580,26 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         };
         let st = tr.step(&pool, a.isa, &fill, &head, true)?;
         step += 1;
-        ema = Some(ema.map_or(st.loss, |e| 0.98 * e + 0.02 * st.loss));
+        if st.skipped() {
+            skipped += 1;
+            let from: Vec<String> = st
+                .bad_crops
+                .iter()
+                .map(|&i| format!("{} at ({}, {})", origins[picks[i].frame], picks[i].x0, picks[i].y0))
+                .collect();
+            let line = format!(
+                "step {step}: skipped (loss or gradient not finite; gradient norm {}){}{}",
+                st.grad_norm,
+                if from.is_empty() { "" } else { "; crops from " },
+                from.join(", ")
+            );
+            match &bar {
+                Some(b) => b.println(line),
+                None => eprintln!("{line}"),
+            }
+        } else {
+            ema = Some(ema.map_or(st.loss, |e| 0.98 * e + 0.02 * st.loss));
+        }
         let secs = seconds_before + start.elapsed().as_secs_f64();
         let mut vpsnr = String::new();
         if !val.is_empty() && a.val_every > 0 && step % a.val_every == 0 {
@@ -616,10 +642,11 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     model.save(&a.out, &tr, &[("steps", step.to_string())], None)?;
     let vp = if val.is_empty() { None } else { Some(validate_now(&tr)?) };
     eprintln!(
-        "trained {step} steps in {secs:.1} s ({:.2} steps/s this run, {} threads, {}); final loss {:.4}{}; weights: {}",
+        "trained {step} steps in {secs:.1} s ({:.2} steps/s this run, {} threads, {}){}; final loss {:.4}{}; weights: {}",
         (step - first_step) as f64 / start.elapsed().as_secs_f64().max(1e-9),
         a.threads,
         a.isa.name(),
+        if skipped > 0 { format!(", {skipped} skipped (not finite)") } else { String::new() },
         ema.unwrap_or(0.0),
         vp.map(|p| format!(", validation PSNR {p:.2} dB")).unwrap_or_default(),
         a.out.display()

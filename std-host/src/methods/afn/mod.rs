@@ -324,7 +324,7 @@ pub fn head(
         nets.forward(1, ws1)?;
         let rr = ws1.output();
         for k in 0..3 * n {
-            ob[k] = ((e * ib[k]).max(0.0).ln_1p() + rr[k]).exp_m1() / e;
+            ob[k] = ((e * ib[k]).max(0.0).ln_1p() + rr[k].clamp(-REFINE_LIMIT, REFINE_LIMIT)).exp_m1() / e;
         }
     } else {
         ob.copy_from_slice(ib);
@@ -337,9 +337,10 @@ pub fn head(
     // Back through the remodulation and the refinement to i.
     if refine {
         let ws1 = &mut rest[0];
-        let (_, rg, _) = ws1.head_parts();
+        let (rr, rg, _) = ws1.head_parts();
         for k in 0..3 * n {
-            rg[k] = rg_value(g_out[k], alb[k], ob[k], e);
+            // No gradient where the residual is clamped.
+            rg[k] = if rr[k].abs() < REFINE_LIMIT { rg_value(g_out[k], alb[k], ob[k], e) } else { 0.0 };
         }
         nets.backward(1, ws1)?;
         let gin = ws1.input_grad();
@@ -397,6 +398,12 @@ pub fn head(
     let _ = &mut grads;
     Ok(l)
 }
+
+/// The largest residual of the refinement in `log1p` space (a factor of
+/// about 400 either way): an untrained or odd network cannot overflow the
+/// output to infinity (a nearly black training frame did, with an exposure
+/// of 4.5e5).
+pub const REFINE_LIMIT: f32 = 6.0;
 
 /// The refinement output's gradient: with `o = expm1(log1p(e i) + r) / e`,
 /// `d out / d r = alb (o + 1 / e)` times the output's gradient.
@@ -732,7 +739,7 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
             P::encode(&rin, &mut rp.data, rp.frac);
             let r = t.time("refinement", || rinf.run(ctx, rp))?.decode::<P>();
             for k in 0..3 * n {
-                out[k] = ((rin[k] + r[k]).exp_m1() / e + ex[k]) * alb[k];
+                out[k] = ((rin[k] + r[k].clamp(-REFINE_LIMIT, REFINE_LIMIT)).exp_m1() / e + ex[k]) * alb[k];
             }
         } else {
             for k in 0..3 * n {

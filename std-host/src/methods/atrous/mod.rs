@@ -74,7 +74,7 @@ pub const PHI_PAIR: f32 = 64.0;
 /// Default `phi_color` with one estimate. The local noise estimate is a
 /// median of squared deviations: for Monte Carlo noise, whose distribution
 /// has a long bright tail, it sits 2 to 5 times below the variance, and the
-/// corpus sweep (README) puts the best multiple near 2048.
+/// corpus sweep (docs/quality.md) puts the best multiple near 2048.
 pub const PHI_SINGLE: f32 = 2048.0;
 /// Above this relative noise ([`NoiseStats::relative`]) with one estimate,
 /// the default `phi_color` is multiplied by the ratio (up to
