@@ -29,6 +29,11 @@ fn main() -> ExitCode {
             .map(|s| s.to_string())
             .or_else(|| info.payload().downcast_ref::<String>().cloned())
             .unwrap_or_else(|| "unknown panic".into());
+        // Output piped into a reader that stopped (`mcdenoise inspect F |
+        // head`): end quietly, as a program killed by SIGPIPE would (141).
+        if msg.starts_with("failed printing to stdout") && msg.contains("os error 32") {
+            std::process::exit(141);
+        }
         let at = info.location().map(|l| format!(" at {}:{}", l.file(), l.line())).unwrap_or_default();
         eprintln!("mcdenoise: internal error: {msg}{at} (please report this)");
     }));

@@ -258,6 +258,79 @@ fn train_needs_its_arguments() {
     );
 }
 
+/// Output into a pipe whose reader has gone (`mcdenoise --help | head -1`):
+/// no "internal error", exit 0 or 141 (SIGPIPE's status).
+#[test]
+fn a_closed_pipe_ends_quietly() {
+    for args in [&["--help"][..], &["completions", "bash"][..]] {
+        let mut child =
+            bin().args(args).stdout(std::process::Stdio::piped()).stderr(std::process::Stdio::piped()).spawn().unwrap();
+        drop(child.stdout.take());
+        let out = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!err.contains("internal error"), "{args:?}: {err}");
+        assert!(matches!(out.status.code(), Some(0) | Some(141)), "{args:?}: {:?} {err}", out.status);
+    }
+}
+
+/// A training directory with a sequence still being rendered (a frame
+/// without its reference) and one that does not load: both are named and
+/// skipped, the run trains on the rest; with nothing left it fails.
+#[test]
+fn train_skips_incomplete_and_broken_sequences() {
+    let dir = std::env::temp_dir().join(format!("mcdenoise-cli-train-skip-{}", std::process::id()));
+    let data = dir.join("data");
+    let good = data.join("a_good");
+    std::fs::create_dir_all(good.join("ref")).unwrap();
+    let src = fixtures().join("seq_small");
+    for name in ["frame_0000.exr", "frame_0001.exr"] {
+        std::fs::copy(src.join(name), good.join(name)).unwrap();
+        std::fs::copy(src.join("ref").join(name), good.join("ref").join(name)).unwrap();
+    }
+    let partial = data.join("b_rendering");
+    std::fs::create_dir_all(partial.join("ref")).unwrap();
+    std::fs::copy(src.join("frame_0000.exr"), partial.join("frame_0000.exr")).unwrap();
+    let broken = data.join("c_broken");
+    std::fs::create_dir_all(broken.join("ref")).unwrap();
+    std::fs::write(broken.join("frame_0000.exr"), b"not an exr").unwrap();
+    std::fs::write(broken.join("ref").join("frame_0000.exr"), b"not an exr").unwrap();
+    let w = dir.join("w.safetensors");
+    let args = |d: &Path| {
+        vec![
+            "train".to_string(),
+            "--method".into(),
+            "wskp".into(),
+            "--layers".into(),
+            "3".into(),
+            "--data".into(),
+            d.to_str().unwrap().into(),
+            "--steps".into(),
+            "2".into(),
+            "--batch".into(),
+            "1".into(),
+            "--crop".into(),
+            "32".into(),
+            "--threads".into(),
+            "1".into(),
+            "-o".into(),
+            w.to_str().unwrap().into(),
+        ]
+    };
+    let a = args(&data);
+    let out = run(&a.iter().map(|s| s.as_str()).collect::<Vec<_>>());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("b_rendering") && err.contains("has no reference yet"), "{err}");
+    assert!(err.contains("c_broken"), "{err}");
+    assert!(err.contains("1 sequences"), "{err}");
+    assert!(w.exists());
+    std::fs::remove_dir_all(&good).unwrap();
+    let a = args(&data);
+    let out = run(&a.iter().map(|s| s.as_str()).collect::<Vec<_>>());
+    assert_fails(&out, 1, "no complete sequence to train on");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// `--method cross` on frames without the second estimate: one line naming
 /// `B.R,B.G,B.B`, exit 1; a bad `--seed` names the flag.
 #[test]
@@ -291,7 +364,17 @@ fn cross_without_second_estimate_names_the_channels() {
 fn every_command_has_help() {
     for (cmd, needles) in [
         ("demo", &["[default: f32]", "f16-arith"][..]),
-        ("denoise", &["--method <METHOD>", "sure-atrous", "Dammertz", "[default: 6]", "--quiet", "--json"][..]),
+        (
+            "denoise",
+            &[
+                "--method <METHOD>",
+                "sure-atrous",
+                "Dammertz",
+                "[default: the --weights file's, else 6]",
+                "--quiet",
+                "--json",
+            ][..],
+        ),
         ("train", &["[default: relmse-n2n]", "relmse", "1spp-only", "[default: 128]"][..]),
         ("score", &["--reference <REF>", "<OUT>"][..]),
         ("precision", &["[default: 1280x720]", "--only"][..]),

@@ -216,6 +216,19 @@ struct Sample {
     data: Vec<half::f16>,
 }
 
+/// Scales a sample's radiance planes by the frame's exposure `e` and sets
+/// its exposure plane to 1. Samples are held in f16: a nearly black frame's
+/// exposure (4.5e5 on one generated frame) overflows f16, and its radiance
+/// (1e-6) would be subnormal; exposure-scaled, both are near 0.18. The
+/// heads and losses are linear in the radiance given the exposure, so
+/// this changes no result but the rounding.
+fn exposed(e: f32, planes: &mut [&mut [f32]], expo: &mut [f32]) {
+    for p in planes.iter_mut() {
+        p.iter_mut().for_each(|v| *v *= e);
+    }
+    expo.fill(1.0);
+}
+
 /// Where a crop comes from: frame, corner, and which of the 8 symmetries.
 #[derive(Clone, Copy, Debug)]
 struct CropAt {
@@ -354,7 +367,7 @@ impl Model {
                         let (expo, ex) = rest.split_at_mut(n);
                         let e = wskp::inputs(pool, f, t, x, c, alb, ex)?;
                         rf.copy_from_slice(r);
-                        expo.fill(e);
+                        exposed(e, &mut [c, rf, ex], expo);
                     }
                     Model::Afn(variant) => {
                         afn::check_inputs(f)?;
@@ -367,7 +380,7 @@ impl Model {
                         let e = afn::inputs(pool, variant, f, t, x, c1, ct, alb, ex)?;
                         rf.copy_from_slice(r);
                         feats.copy_from_slice(&x[6 * n..]);
-                        expo.fill(e);
+                        exposed(e, &mut [c1, ct, rf, ex], expo);
                     }
                 }
                 let data = data.iter().map(|&v| half::f16::from_f32(v)).collect();
@@ -445,8 +458,23 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     // Where each sample comes from (named when a step is skipped).
     let mut origins: Vec<String> = Vec::new();
     let mut nseqs = 0;
+    let mut skipped_seqs = Vec::new();
     for (k, d) in dirs.iter().enumerate() {
-        let mut seq = load_sequence(d)?;
+        // A sequence still being rendered (a frame without its reference)
+        // is left for a later run; one that does not load is named and
+        // skipped, so that one bad file does not end a run of hours.
+        let files = list_inputs(&[d.clone()])?;
+        if let Some(f) = files.iter().find(|f| !d.join("ref").join(f.file_name().expect("a file")).exists()) {
+            skipped_seqs.push(format!("{}: {} has no reference yet", d.display(), f.display()));
+            continue;
+        }
+        let mut seq = match load_sequence(d) {
+            Ok(s) => s,
+            Err(e) => {
+                skipped_seqs.push(format!("{}: {e}", d.display()));
+                continue;
+            }
+        };
         let n0 = samples.len();
         model.samples(&seq, &pool, a.isa, &mut samples)?;
         origins.extend((0..samples.len() - n0).map(|j| format!("{} frame {j}", d.display())));
@@ -462,6 +490,12 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         if (k + 1) % 50 == 0 {
             eprintln!("  {} of {} sequences loaded ({} samples)", k + 1, dirs.len(), samples.len());
         }
+    }
+    for s in &skipped_seqs {
+        eprintln!("skipped {s}");
+    }
+    if samples.is_empty() {
+        return Err(HostError::bad(&a.data, "no complete sequence to train on"));
     }
     let s = a.crop;
     if let Some(small) = samples.iter().find(|x| x.w < s || x.h < s) {
