@@ -38,7 +38,8 @@ def main():
     while len(tiles) % a.cols:
         tiles.append(np.zeros((h, w, 3)))
     rows = [np.concatenate(tiles[i:i + a.cols], axis=1) for i in range(0, len(tiles), a.cols)]
-    write_png(a.out, np.concatenate(rows, axis=0))
+    sheet = np.concatenate(rows, axis=0)
+    write_png(a.out, (np.clip(sheet, 0, 1) * 255 + 0.5).astype(np.uint8))
 
 
 if __name__ == '__main__':

@@ -11,6 +11,7 @@
 #   MODELS="wskp3 afn wskp6"   which models, in this order (default)
 #   STEPS_WSKP3=60000 STEPS_WSKP6=40000 STEPS_AFN=30000   the cosine schedule's length
 #   THREADS=2
+#   TRAIN=DIR VAL=DIR          other training / validation directories (default DATA/train, DATA/val)
 #   also: afn-ta-only, afn-1spp-only (AFN's ablation, 5000 steps each)
 # The training data is DATA/train (every complete sequence), the validation
 # DATA/val; DATA/test is never read here.
@@ -24,9 +25,11 @@ MODELS="${MODELS:-wskp3 afn wskp6}"
 THREADS="${THREADS:-2}"
 BIN="${MCDENOISE:-$HERE/../target/release/mcdenoise}"
 [ -x "$BIN" ] || (cd "$HERE/.." && cargo build --release)
-[ -d "$DATA/train" ] || { echo "no $DATA/train: run bash tools/render-train.sh $DATA first" >&2; exit 1; }
+TRAIN="${TRAIN:-$DATA/train}"
+VAL="${VAL:-$DATA/val}"
+[ -d "$TRAIN" ] || { echo "no $TRAIN: run bash tools/render-train.sh $DATA first" >&2; exit 1; }
 mkdir -p "$OUT"
-common=(--data "$DATA/train" --val "$DATA/val" --batch 8 --crop 128 --threads "$THREADS" --seed 1
+common=(--data "$TRAIN" --val "$VAL" --batch 8 --crop 128 --threads "$THREADS" --seed 1
     --checkpoint-minutes 5 --lr-schedule cosine)
 for m in $MODELS; do
     case "$m" in

@@ -185,6 +185,23 @@ fn learning_rate(s: &str) -> std::result::Result<f32, String> {
     real(s, 0.0, 1.0).map(|v| v as f32)
 }
 
+/// `--emulate-spp`'s list (a newtype: clap reads a bare `Vec` as repeats).
+#[derive(Clone, Debug)]
+struct SppList(Vec<u32>);
+
+fn spp_list(s: &str) -> std::result::Result<SppList, String> {
+    if s == "off" {
+        return Ok(SppList(Vec::new()));
+    }
+    s.split(',')
+        .map(|t| match t.trim().parse::<u32>() {
+            Ok(n) if (2..=65536).contains(&n) => Ok(n),
+            _ => Err(format!("expected sample counts 2..65536 separated by commas, or off; got '{t}'")),
+        })
+        .collect::<std::result::Result<Vec<_>, _>>()
+        .map(SppList)
+}
+
 fn estimates(s: &str) -> std::result::Result<usize, String> {
     whole(s, 1, 2).map(|v| v as usize)
 }
@@ -522,6 +539,10 @@ struct TrainCli {
     /// the frames have it)
     #[arg(long, value_name = "N", default_value = "2", value_parser = estimates)]
     estimates: usize,
+    /// Sample counts emulated by one more copy of each sequence, its noise divided by sqrt(n) (n
+    /// cycles through the list; "off": none), so that the filters learn more than 1 spp's noise
+    #[arg(long, value_name = "N,N,..", default_value = "4,16,64", value_parser = spp_list)]
+    emulate_spp: SppList,
     /// Gradient norm clip (0: off)
     #[arg(long, value_name = "F", default_value = "0", value_parser = clip)]
     clip: f32,
@@ -701,6 +722,7 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
             a.variant = t.variant;
             a.sizes = t.sizes;
             a.estimates = t.estimates;
+            a.emulate_spp = t.emulate_spp.0;
             a.schedule = t.lr_schedule;
             Command::Train(a)
         }

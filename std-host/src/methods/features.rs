@@ -42,8 +42,9 @@
 //! # Network inputs
 //!
 //! The learned filters average the demodulated irradiance below a level
-//! where a pixel has no albedo and leave the excess at its pixel
-//! ([`split_excess`]): emitters seen directly stay sharp.
+//! where a pixel is an emitter and leave the excess at its pixel
+//! ([`split_excess`]): emitters seen directly stay sharp. Their inputs'
+//! fireflies are clamped first ([`clamp_fireflies`]).
 //!
 //! The learned methods scale the colour by the frame's exposure (OIDN's
 //! autoexposure: `0.18 / exp(mean log luminance)` over 16x16 bins brighter
@@ -62,7 +63,7 @@ use crate::runtime::par::Pool;
 /// The input transform's name and version, recorded in every weights file
 /// of a learned method (metadata `transform`): weights trained under one
 /// transform are refused under another.
-pub const TRANSFORM: &str = "mcdenoise-features-5";
+pub const TRANSFORM: &str = "mcdenoise-features-6";
 
 /// The albedo (largest channel) from which a pixel is fully demodulated;
 /// below it the factor blends towards 1 (radiance).
@@ -80,6 +81,9 @@ pub const EXPOSURE_KEY: f32 = 0.18;
 /// key), above which a pixel without albedo keeps its irradiance out of
 /// the learned filters ([`split_excess`]).
 pub const EXCESS_FLOOR: f32 = 1.0;
+/// The learned filters' firefly clamp ([`clamp_fireflies`]): standard
+/// deviations above the 5x5 neighbours' mean.
+pub const FIREFLY_K: f32 = 6.0;
 /// A pixel whose albedo is under `1 - PARTIAL_FROM` of its 3x3 neighbours'
 /// largest starts to count as covered in part by an emitter (a light one or
 /// two pixels thin has no pixel without albedo), fully under `1 - 2
@@ -89,7 +93,7 @@ pub const PARTIAL_FROM: f32 = 0.25;
 /// A pixel above the floor whose 3x3 neighbourhood's luminance is at least
 /// this fraction of its largest counts as an emitter even with albedo
 /// (Mitsuba's Cornell box gives its light the walls' white BSDF).
-pub const SMOOTH: f32 = 0.75;
+pub const SMOOTH: f32 = 0.5;
 /// ... and the multiple of the surrounding surfaces' level above which.
 pub const EXCESS_RATIO: f32 = 4.0;
 /// The reach of the learned filters (WSKP's 13x13 windows, AFN's 7x7 at
@@ -404,6 +408,49 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
             }
         }
     });
+}
+
+/// The firefly clamp of the learned filters' inputs (the à-trous methods'
+/// rule, `FIREFLY_K` standard deviations): on the demodulated planes `c`
+/// (3 of `w x h`) made from `radiance`, a pixel whose radiance luminance
+/// `L` exceeds `T = m + FIREFLY_K s` (`m`, `s` the mean and standard
+/// deviation of its 5x5 neighbours, the centre left out) is scaled by
+/// `T / L`. Emitters ([`is_emitter`]) are left alone (their excess is kept
+/// out of the filters by [`split_excess`]). A kernel filter conserves
+/// energy: a 1-spp firefly of 1000 times its neighbours, spread over a
+/// 7x7 window, leaves a 20-times-too-bright blotch; clamped, it leaves
+/// nothing (a small bias, OIDN's choice too).
+pub fn clamp_fireflies(c: &mut [f32], radiance: &[f32], albedo: &[f32], w: usize, h: usize) {
+    let n = w * h;
+    if n == 0 || c.len() < 3 * n || radiance.len() < 3 * n || albedo.len() < 3 * n {
+        return;
+    }
+    let lum: Vec<f32> = (0..n).map(|i| (radiance[i] + radiance[n + i] + radiance[2 * n + i]) / 3.0).collect();
+    let mut s1: Vec<f32> = lum.iter().map(|&v| if v.is_finite() { v } else { 0.0 }).collect();
+    let mut s2: Vec<f32> = s1.iter().map(|&v| v * v).collect();
+    box_sum(&mut s1, w, h, 2);
+    box_sum(&mut s2, w, h, 2);
+    for i in 0..n {
+        let li = lum[i];
+        if !(li > 0.0) || is_emitter(albedo, n, i) {
+            continue;
+        }
+        let (y, x) = (i / w, i % w);
+        let cnt = (((x + 3).min(w) - x.saturating_sub(2)) * ((y + 3).min(h) - y.saturating_sub(2))) as f64 - 1.0;
+        if cnt < 1.0 {
+            continue;
+        }
+        let (a, b) = (s1[i] as f64 - li as f64, s2[i] as f64 - li as f64 * li as f64);
+        let m = a / cnt;
+        let sd = (b / cnt - m * m).max(0.0).sqrt();
+        let t = m + FIREFLY_K as f64 * sd;
+        if (li as f64) > t {
+            let f = (t.max(0.0) / li as f64) as f32;
+            for ch in 0..3 {
+                c[ch * n + i] *= f;
+            }
+        }
+    }
 }
 
 /// In place: each value becomes the sum over the `(2r+1)^2` window around

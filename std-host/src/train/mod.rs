@@ -81,6 +81,11 @@ pub struct TrainArgs {
     /// Independent estimates of a frame used as inputs of its target: 1
     /// (`R,G,B`) or 2 (`R,G,B` and, where the frame has it, `B.*`).
     pub estimates: usize,
+    /// Sample counts emulated by a copy of each sequence whose colour is
+    /// `ref + (colour - ref) / sqrt(n)` (n cycling through the list over
+    /// the sequences; empty: no copies). The renders are 1 spp; without
+    /// these the filters learn one noise level and blur a 64-spp frame.
+    pub emulate_spp: Vec<u32>,
     /// The learning rate's schedule.
     pub schedule: Schedule,
 }
@@ -141,6 +146,7 @@ impl Default for TrainArgs {
             variant: afn::Variant::Fusion,
             sizes: wskp::Sizes::ALL,
             estimates: 2,
+            emulate_spp: vec![4, 16, 64],
             schedule: Schedule::Cosine,
         }
     }
@@ -436,6 +442,23 @@ impl Model {
     }
 }
 
+/// Makes a sequence's estimates look like `n`-spp renders: each one's
+/// difference from the reference is divided by `sqrt(n)` (the variance of a
+/// mean of `n` independent samples). The result stays non-negative where
+/// the colour and reference are (`ref + (c - ref) s >= (1 - s) ref`).
+fn emulate_spp(seq: &mut Sequence, n: u32) -> Result<()> {
+    let s = 1.0 / (n as f32).sqrt();
+    for (f, r) in seq.frames.iter_mut().zip(&seq.refs) {
+        for b in [Buffer::Color, Buffer::ColorB] {
+            if let Some(c) = f.get(b) {
+                let scaled: Vec<f32> = c.iter().zip(r).map(|(&c, &r)| r + (c - r) * s).collect();
+                f.set(b, scaled)?;
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Runs `mcdenoise train`.
 pub fn run(a: &TrainArgs) -> Result<()> {
     let model = match a.method.as_str() {
@@ -463,7 +486,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         // A sequence still being rendered (a frame without its reference)
         // is left for a later run; one that does not load is named and
         // skipped, so that one bad file does not end a run of hours.
-        let files = list_inputs(&[d.clone()])?;
+        let files = list_inputs(std::slice::from_ref(d))?;
         if let Some(f) = files.iter().find(|f| !d.join("ref").join(f.file_name().expect("a file")).exists()) {
             skipped_seqs.push(format!("{}: {} has no reference yet", d.display(), f.display()));
             continue;
@@ -478,13 +501,27 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         let n0 = samples.len();
         model.samples(&seq, &pool, a.isa, &mut samples)?;
         origins.extend((0..samples.len() - n0).map(|j| format!("{} frame {j}", d.display())));
-        if a.estimates > 1 && seq.frames.iter().all(|f| f.has(Buffer::ColorB)) {
+        let swapped = a.estimates > 1 && seq.frames.iter().all(|f| f.has(Buffer::ColorB));
+        if swapped {
             for f in &mut seq.frames {
                 f.swap_estimates();
             }
             let n0 = samples.len();
             model.samples(&seq, &pool, a.isa, &mut samples)?;
             origins.extend((0..samples.len() - n0).map(|j| format!("{} frame {j} (estimates swapped)", d.display())));
+        }
+        if !a.emulate_spp.is_empty() {
+            // Back to the first estimate; both scaled towards the reference.
+            if swapped {
+                for f in &mut seq.frames {
+                    f.swap_estimates();
+                }
+            }
+            let n = a.emulate_spp[nseqs % a.emulate_spp.len()];
+            emulate_spp(&mut seq, n)?;
+            let n0 = samples.len();
+            model.samples(&seq, &pool, a.isa, &mut samples)?;
+            origins.extend((0..samples.len() - n0).map(|j| format!("{} frame {j} (as {n} spp)", d.display())));
         }
         nseqs += 1;
         if (k + 1) % 50 == 0 {
