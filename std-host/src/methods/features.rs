@@ -63,7 +63,7 @@ use crate::runtime::par::Pool;
 /// The input transform's name and version, recorded in every weights file
 /// of a learned method (metadata `transform`): weights trained under one
 /// transform are refused under another.
-pub const TRANSFORM: &str = "mcdenoise-features-6";
+pub const TRANSFORM: &str = "mcdenoise-features-7";
 
 /// The albedo (largest channel) from which a pixel is fully demodulated;
 /// below it the factor blends towards 1 (radiance).
@@ -86,16 +86,25 @@ pub const EXCESS_FLOOR: f32 = 1.0;
 pub const FIREFLY_K: f32 = 6.0;
 /// A pixel whose albedo is under `1 - PARTIAL_FROM` of its 3x3 neighbours'
 /// largest starts to count as covered in part by an emitter (a light one or
-/// two pixels thin has no pixel without albedo), fully under `1 - 2
-/// PARTIAL_FROM`; on a plain surface such a pixel's irradiance stays under
-/// the level and nothing changes.
-pub const PARTIAL_FROM: f32 = 0.25;
+/// two pixels thin has no pixel without albedo), fully under `1 -
+/// PARTIAL_FULL`; on a plain surface such a pixel's irradiance stays under
+/// the level and nothing changes. (A corridor's strip light covering 40-50 %
+/// of its row has albedo 0.40-0.52 beside the ceiling's 0.8: all of it must
+/// count, or the part that does not is spread into the ceiling.)
+pub const PARTIAL_FROM: f32 = 0.15;
+/// See [`PARTIAL_FROM`].
+pub const PARTIAL_FULL: f32 = 0.3;
 /// A pixel above the floor whose 3x3 neighbourhood's luminance is at least
 /// this fraction of its largest counts as an emitter even with albedo
 /// (Mitsuba's Cornell box gives its light the walls' white BSDF).
 pub const SMOOTH: f32 = 0.5;
 /// ... and the multiple of the surrounding surfaces' level above which.
 pub const EXCESS_RATIO: f32 = 4.0;
+/// The same multiple for a pixel known to be a light (covered in part by
+/// one, or bright and smooth): the filters see it at the level of the
+/// surfaces around it, so its neighbours (a Cornell box light's dark rim,
+/// ref 0.01) get nothing of it.
+pub const LIGHT_RATIO: f32 = 1.0;
 /// The reach of the learned filters (WSKP's 13x13 windows, AFN's 7x7 at
 /// half scale), over which those surroundings are measured.
 pub const EXCESS_RADIUS: usize = 7;
@@ -274,19 +283,21 @@ pub fn transfer(x: f32) -> f32 {
 /// filter cannot keep a light out of its neighbours by itself (WSKP's
 /// weights are shared by every window that contains a pixel), so:
 ///
-/// - a pixel takes part where it or a 3x3 neighbour has no albedo to speak
-///   of (`keep = max over 3x3 of 1 - w`, [`albedo_weight`]): emitters seen
+/// - a pixel takes part where it or a neighbour within 2 pixels has no albedo to speak
+///   of (`keep = max over 5x5 of 1 - w`, [`albedo_weight`]): emitters seen
 ///   directly, their outline, glass and mirrors in raw AOVs; and where a
 ///   light covers it in part (its albedo well under its neighbours',
-///   [`PARTIAL_FROM`], beside another such pixel at least half as bright:
+///   [`PARTIAL_FROM`], near (5x5) another such pixel at least half as bright:
 ///   a light one or two pixels thin, which has no pixel without albedo).
 ///   Other pixels are averaged whole (their fireflies are noise to spread,
 ///   and a firefly is alone);
 /// - its level is `T = max(EXCESS_FLOOR / exposure, EXCESS_RATIO m)`, `m`
 ///   the mean luminance of the surfaces with albedo within
-///   [`EXCESS_RADIUS`] pixels (the filters' reach), or no limit where there
-///   are none (the inside of a large emitter or glass pane, whose kernels
-///   reach only itself);
+///   [`EXCESS_RADIUS`] pixels (the filters' reach), with `LIGHT_RATIO`
+///   instead of `EXCESS_RATIO` where the pixel is known to be a light
+///   (covered in part, or bright and smooth); where there are none, the
+///   floor inside a light (the kernels of the surfaces beside a large
+///   light reach into it) and no limit inside a pane of glass;
 /// - `excess = keep max(c - T, 0)` per channel, `c` keeps the rest.
 ///
 /// So a light stays sharp and bleeds at most `EXCESS_RATIO` times the
@@ -312,15 +323,23 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
             }
             let p = y * w + x;
             if m > 0.0 {
-                covered[p] = ((1.0 - amax[p] / m - PARTIAL_FROM) / PARTIAL_FROM).clamp(0.0, 1.0);
+                covered[p] = ((1.0 - amax[p] / m - PARTIAL_FROM) / (PARTIAL_FULL - PARTIAL_FROM)).clamp(0.0, 1.0);
             }
         }
     }
-    // A covered pixel counts only beside another emitter pixel at least half
-    // as bright (a light is a line or a region; a firefly on the dark side
-    // of a texture's edge is alone, and is averaged).
+    // A covered pixel counts only near another emitter pixel at least half
+    // as bright, within 2 pixels (a light is a line or a region; a firefly
+    // on the dark side of a texture's edge is alone, and is averaged). At
+    // 1 spp about half of a strip light's samples miss it, so the next hit
+    // along the strip may be two pixels away.
+    const SUPPORT: usize = 2;
     let lum: Vec<f32> = (0..n).map(|p| luminance(c[p], c[n + p], c[2 * n + p]).max(0.0)).collect();
     let mut keep0 = none.clone();
+    // How much a pixel is known to be a light (covered in part, or bright
+    // and smooth): its level is the surroundings' own, not EXCESS_RATIO
+    // times it (pixels without albedo may be glass or a mirror, noisy at
+    // 1 spp: they keep the wider level).
+    let mut tight = vec![0.0f32; n];
     for y in 0..h {
         for x in 0..w {
             let p = y * w + x;
@@ -328,14 +347,15 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
                 continue;
             }
             let mut supported = false;
-            for yy in y.saturating_sub(1)..(y + 2).min(h) {
-                for xx in x.saturating_sub(1)..(x + 2).min(w) {
+            for yy in y.saturating_sub(SUPPORT)..(y + SUPPORT + 1).min(h) {
+                for xx in x.saturating_sub(SUPPORT)..(x + SUPPORT + 1).min(w) {
                     let q = yy * w + xx;
                     supported |= q != p && (none[q] > 0.0 || covered[q] > 0.0) && 2.0 * lum[q] >= lum[p];
                 }
             }
             if supported {
                 keep0[p] = covered[p];
+                tight[p] = covered[p];
             }
         }
     }
@@ -347,7 +367,7 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
     for y in 0..h {
         for x in 0..w {
             let p = y * w + x;
-            if lum[p] <= floor || core[p] >= 1.0 {
+            if lum[p] <= floor {
                 continue;
             }
             let (mut lo, mut hi) = (f32::INFINITY, 0.0f32);
@@ -360,6 +380,7 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
             if lo >= SMOOTH * hi {
                 core[p] = 1.0;
                 keep0[p] = 1.0;
+                tight[p] = 1.0;
             }
         }
     }
@@ -367,16 +388,19 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
         excess[..3 * n].fill(0.0);
         return;
     }
+    const OUTLINE: usize = 2;
     let mut keep = vec![0.0f32; n];
     for y in 0..h {
         for x in 0..w {
             let mut m = 0.0f32;
-            for yy in y.saturating_sub(1)..(y + 2).min(h) {
-                for xx in x.saturating_sub(1)..(x + 2).min(w) {
+            for yy in y.saturating_sub(OUTLINE)..(y + OUTLINE + 1).min(h) {
+                for xx in x.saturating_sub(OUTLINE)..(x + OUTLINE + 1).min(w) {
                     m = m.max(core[yy * w + xx]);
                 }
             }
-            // The outline of an emitter; a covered pixel itself.
+            // The outline of an emitter (two pixels: the smoothness test
+            // leaves out a light's last pixel row and the one inside it,
+            // whose 3x3 reaches the dark side); a covered pixel itself.
             keep[y * w + x] = m.max(keep0[y * w + x]);
         }
     }
@@ -393,13 +417,24 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
     box_sum(&mut den, w, h, r);
     let mut planes: Vec<&mut [f32]> = c[..3 * n].chunks_mut(n).collect();
     planes.extend(excess[..3 * n].chunks_mut(n));
-    let (keep, num, den) = (&keep, &num, &den);
+    let (keep, num, den, tight) = (&keep, &num, &den, &tight);
     pool.planes(planes, 1 << 14, |start, runs| {
         let (cs, ex) = runs.split_at_mut(3);
         for i in 0..cs[0].len() {
             let p = start + i;
             let k = keep[p];
-            let level = if den[p] > 0.5 { (EXCESS_RATIO * num[p] / den[p]).max(floor) } else { f32::INFINITY };
+            let ratio = EXCESS_RATIO + tight[p] * (LIGHT_RATIO - EXCESS_RATIO);
+            // Inside a large light no surface is within reach: its level is
+            // the floor (the light stays as it came, and the kernels of the
+            // surfaces beside it, which reach into it, find nothing of it);
+            // inside a pane of glass, none (it is filtered whole).
+            let level = if den[p] > 0.5 {
+                (ratio * num[p] / den[p]).max(floor)
+            } else if tight[p] > 0.0 {
+                floor / tight[p]
+            } else {
+                f32::INFINITY
+            };
             for ch in 0..3 {
                 let v = cs[ch][i];
                 let e = if k > 0.0 { k * (v - level).max(0.0) } else { 0.0 };

@@ -733,3 +733,47 @@ pub fn run(a: &TrainArgs) -> Result<()> {
 pub fn load_params(path: &Path, net: &Net, model: &str) -> Result<Vec<f32>> {
     File::read(path)?.params(net, model, &["adam.m", "adam.v"])
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each estimate's difference from the reference shrinks by `sqrt(n)`
+    /// (checked in f64), so its variance over many pixels by `n`; buffers
+    /// other than the estimates are untouched.
+    #[test]
+    fn emulated_spp_divides_the_noise_variance_by_n() {
+        let (w, h) = (64, 48);
+        let m = 3 * w * h;
+        let mut state = 12345u64;
+        let mut rnd = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((state >> 33) as f64 / (1u64 << 31) as f64) as f32
+        };
+        let reference: Vec<f32> = (0..m).map(|_| 0.2 + rnd()).collect();
+        // 1-spp-like: 0 or 4x the reference, mean about the reference.
+        let a: Vec<f32> = reference.iter().map(|&r| if rnd() < 0.25 { 4.0 * r } else { 0.0 }).collect();
+        let b: Vec<f32> = reference.iter().map(|&r| r * 2.0 * rnd()).collect();
+        let albedo: Vec<f32> = (0..m).map(|_| rnd()).collect();
+        let mut f = Frame::from_color("f.exr", w, h, a.clone()).unwrap();
+        f.set(Buffer::ColorB, b.clone()).unwrap();
+        f.set(Buffer::Albedo, albedo.clone()).unwrap();
+        let mut seq = Sequence { dir: PathBuf::from("s"), frames: vec![f], refs: vec![reference.clone()] };
+        emulate_spp(&mut seq, 16).unwrap();
+        let f = &seq.frames[0];
+        for (src, buf) in [(&a, Buffer::Color), (&b, Buffer::ColorB)] {
+            let got = f.get(buf).unwrap();
+            let (mut v0, mut v1) = (0.0f64, 0.0f64);
+            for i in 0..m {
+                let (c, r) = (src[i] as f64, reference[i] as f64);
+                let want = r + (c - r) / 4.0;
+                assert!((got[i] as f64 - want).abs() < 1e-6 * (1.0 + want.abs()), "{i}: {} vs {want}", got[i]);
+                assert!(got[i] >= 0.0);
+                v0 += (c - r) * (c - r);
+                v1 += (got[i] as f64 - r) * (got[i] as f64 - r);
+            }
+            assert!((v0 / v1 - 16.0).abs() < 1e-3, "variance ratio {}", v0 / v1);
+        }
+        assert_eq!(f.get(Buffer::Albedo).unwrap(), &albedo[..]);
+    }
+}

@@ -795,7 +795,9 @@ impl Denoiser for Cross {
         });
         let mut result: Vec<f32> = bufs.out[6 * n..9 * n].iter().map(|&v| v.exp_m1().max(0.0)).collect();
         let (a, b) = (f.get(Buffer::Color).expect("colour"), f.get(Buffer::ColorB).expect("checked"));
+        let t_blend = Instant::now();
         blend_by_error(&mut result, a, b, (&bufs.out[6 * n..9 * n], &bufs.a, &bufs.b), w, h, &mut bufs.window[..2 * n]);
+        t.add("fallback to the input (error estimate)", t_blend.elapsed());
         if let Some(path) = self.save_state.clone() {
             self.save(&path)?;
         }
