@@ -467,7 +467,8 @@ pub fn clamp_fireflies(c: &mut [f32], radiance: &[f32], albedo: &[f32], w: usize
     box_sum(&mut s2, w, h, 2);
     for i in 0..n {
         let li = lum[i];
-        if !(li > 0.0) || is_emitter(albedo, n, i) {
+        // (NaN fails the test too.)
+        if li.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) || is_emitter(albedo, n, i) {
             continue;
         }
         let (y, x) = (i / w, i % w);

@@ -482,19 +482,19 @@ fn box_mean(p: &mut [f32], w: usize, h: usize, r: usize) {
     let mut row = vec![0.0f32; w.max(h)];
     for y in 0..h {
         let line = &mut p[y * w..(y + 1) * w];
-        for x in 0..w {
+        for (x, v) in row[..w].iter_mut().enumerate() {
             let (x0, x1) = (x.saturating_sub(r), (x + r + 1).min(w));
-            row[x] = line[x0..x1].iter().sum::<f32>() / (x1 - x0) as f32;
+            *v = line[x0..x1].iter().sum::<f32>() / (x1 - x0) as f32;
         }
         line.copy_from_slice(&row[..w]);
     }
     for x in 0..w {
-        for y in 0..h {
+        for (y, v) in row[..h].iter_mut().enumerate() {
             let (y0, y1) = (y.saturating_sub(r), (y + r + 1).min(h));
-            row[y] = (y0..y1).map(|k| p[k * w + x]).sum::<f32>() / (y1 - y0) as f32;
+            *v = (y0..y1).map(|k| p[k * w + x]).sum::<f32>() / (y1 - y0) as f32;
         }
-        for y in 0..h {
-            p[y * w + x] = row[y];
+        for (y, &v) in row[..h].iter().enumerate() {
+            p[y * w + x] = v;
         }
     }
 }
