@@ -150,7 +150,7 @@ fn envelope_1d(row: &mut [f32], tmp: &mut Vec<f32>) {
 /// The demodulation factor `d` (3 planes of `w x h`, written into `d`) of
 /// the albedo `albedo` (3 planes): the module's rule. Rows in parallel on
 /// `pool` (the blend and the envelope along the row), then bands of rows
-/// (the envelope along the columns, with [`REACH`] rows of halo).
+/// (the envelope along the columns, with `REACH` rows of halo).
 pub fn demodulation(pool: &Pool, albedo: &[f32], w: usize, h: usize, d: &mut [f32]) {
     let n = w * h;
     assert!(albedo.len() >= 3 * n && d.len() >= 3 * n, "demodulation: 3 planes of {w}x{h}");
