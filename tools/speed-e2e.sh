@@ -37,7 +37,7 @@ for m in $METHODS; do
     for p in $PRECISIONS; do
         [ "$m" = none ] && [ "$p" != f32 ] && [ "$p" != f16 ] && continue
         rm -rf "$tmp/out"
-        "$BIN" denoise "${args[@]}" --precision "$p" --threads "$THREADS" --json --quiet "$FR" -o "$tmp/out" >"$tmp/j.json"
+        "$BIN" denoise "${args[@]}" --precision "$p" --threads "$THREADS" --json "$FR" -o "$tmp/out" >"$tmp/j.json"
         python3 - "$m" "$p" "$tmp/j.json" <<'PY'
 import json, sys
 j = json.load(open(sys.argv[3]))
