@@ -187,12 +187,14 @@ fn every_method_lowers_hdr_error_and_makes_no_fireflies() {
                     continue;
                 }
                 let inp = relmse(&s, if reads_pair(kind) { &mean[..] } else { &a_only[..] });
-                // A known gap, not a pass: the learned filters, trained
-                // mostly on 1-spp noise, blur a clean 64-spp frame's edges
-                // (WSKP-3 on the 64-spp box: relMSE 0.0042 against the
-                // input's 0.0024; docs/quality.md). There they are held to
-                // LEARNED_64SPP times the input's, which still catches the
-                // blow-ups this guard is for (3-14x the input's).
+                // A known gap, not a pass: the learned filters blur a clean
+                // 64-spp frame's edges (WSKP-3 on the 64-spp box: relMSE
+                // 0.0042 against the input's 0.0024; docs/quality.md).
+                // WSKP cannot pass its input through: a pixel's importance
+                // is shared by every window that holds it, so no two
+                // neighbours can both keep themselves. There they are held
+                // to LEARNED_64SPP times the input's, which still catches
+                // the blow-ups this guard is for (3-14x the input's).
                 let learned = matches!(kind, MethodKind::Wskp | MethodKind::Afn);
                 let bar = if one_spp {
                     inp / 4.0
