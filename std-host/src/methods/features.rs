@@ -491,7 +491,7 @@ pub fn clamp_fireflies(c: &mut [f32], radiance: &[f32], albedo: &[f32], w: usize
 
 /// In place: each value becomes the sum over the `(2r+1)^2` window around
 /// it (clipped at the border), by running sums along rows then columns.
-fn box_sum(v: &mut [f32], w: usize, h: usize, r: usize) {
+pub(crate) fn box_sum(v: &mut [f32], w: usize, h: usize, r: usize) {
     let mut tmp = vec![0.0f64; w.max(h)];
     for y in 0..h {
         let row = &mut v[y * w..(y + 1) * w];

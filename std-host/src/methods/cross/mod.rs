@@ -433,8 +433,8 @@ const BLEND_MARGIN: f32 = 2.0;
 /// independent), and `(o - m)^2 - v` estimates the output's squared error
 /// (its bias, when its own noise is small). Both are taken in `log1p`
 /// colour (at 1 spp their linear values are ruled by single fireflies),
-/// summed over the channels and averaged over a 13x13 window (one pixel's
-/// estimate is all noise). The linear output becomes `m + k (o - m)` with
+/// summed over the channels and over a 13x13 window (one pixel's estimate
+/// is all noise). The linear output becomes `m + k (o - m)` with
 /// `k = v / (v + max(e - 2 v, 0))`: the weight that minimises the expected
 /// error of a blend of two estimates with independent errors, where the
 /// margin (2, not 1) leaves the output alone unless its excess is clearly
@@ -456,11 +456,14 @@ fn blend_by_error(o: &mut [f32], a: &[f32], b: &[f32], logs: Logs, w: usize, h: 
             v += 0.25 * (x - y) * (x - y);
             e += (z - m) * (z - m);
         }
-        var[i] = if v.is_finite() { v } else { f32::MAX / 256.0 };
-        err[i] = if e.is_finite() { e } else { f32::MAX / 256.0 };
+        // (log1p colour keeps both finite for finite input; the guard is
+        // large but small enough for the window sums' f64 running sums.)
+        var[i] = if v.is_finite() { v } else { 1e12 };
+        err[i] = if e.is_finite() { e } else { 1e12 };
     }
-    box_mean(var, w, h, BLEND_RADIUS);
-    box_mean(err, w, h, BLEND_RADIUS);
+    // Window sums, not means: `k` is a ratio of the two, the same either way.
+    crate::methods::features::box_sum(var, w, h, BLEND_RADIUS);
+    crate::methods::features::box_sum(err, w, h, BLEND_RADIUS);
     for i in 0..n {
         let (v, bias2) = (var[i], (err[i] - BLEND_MARGIN * var[i]).max(0.0));
         let k = if v + bias2 > 0.0 { v / (v + bias2) } else { 1.0 };
@@ -476,28 +479,6 @@ fn blend_by_error(o: &mut [f32], a: &[f32], b: &[f32], logs: Logs, w: usize, h: 
 
 /// The output, A and B in `log1p` colour (3 planes each).
 type Logs<'a> = (&'a [f32], &'a [f32], &'a [f32]);
-
-/// In place: the mean over the `(2r+1)^2` window clipped to the frame.
-fn box_mean(p: &mut [f32], w: usize, h: usize, r: usize) {
-    let mut row = vec![0.0f32; w.max(h)];
-    for y in 0..h {
-        let line = &mut p[y * w..(y + 1) * w];
-        for (x, v) in row[..w].iter_mut().enumerate() {
-            let (x0, x1) = (x.saturating_sub(r), (x + r + 1).min(w));
-            *v = line[x0..x1].iter().sum::<f32>() / (x1 - x0) as f32;
-        }
-        line.copy_from_slice(&row[..w]);
-    }
-    for x in 0..w {
-        for (y, v) in row[..h].iter_mut().enumerate() {
-            let (y0, y1) = (y.saturating_sub(r), (y + r + 1).min(h));
-            *v = (y0..y1).map(|k| p[k * w + x]).sum::<f32>() / (y1 - y0) as f32;
-        }
-        for (y, &v) in row[..h].iter().enumerate() {
-            p[y * w + x] = v;
-        }
-    }
-}
 
 fn log1p_into(src: &[f32], dst: &mut [f32]) {
     for (d, &s) in dst.iter_mut().zip(src) {
