@@ -87,6 +87,9 @@ def main():
     p.add_argument('--weights', required=True)
     p.add_argument('-o', '--output', required=True)
     p.add_argument('--only', help='comma-separated method labels')
+    p.add_argument('--merge', help='an earlier quality.json: its results are kept where this run does not '
+                                   'redo them (with --only, to re-score some methods; for the contact sheets '
+                                   'copy its frames/ directory into OUT_DIR first)')
     p.add_argument('--summary', default='input,ta,atrous,sure-atrous,wskp3 f32,wskp6 f32,afn f32,cross,oidn fast,oidn high',
                    help='methods of the summary table (PSNR and relMSE per sequence)')
     p.add_argument('--sheets', default='input,ta,wskp3 f32,wskp6 f32,afn f32,oidn high',
@@ -97,6 +100,11 @@ def main():
     py = os.path.join(HERE, '.venv-peers', 'bin', 'python')
     seqs = sorted(d for d in os.listdir(a.test) if os.path.isdir(os.path.join(a.test, d)))
     results = {}
+    if a.merge:
+        with open(a.merge) as f:
+            earlier = json.load(f)
+    else:
+        earlier = {}
     os.makedirs(a.output, exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
         for seq in seqs:
@@ -104,6 +112,8 @@ def main():
             results[seq] = {}
             for label, kind, args in methods(a.weights):
                 if a.only and label not in a.only.split(','):
+                    if label in earlier.get(seq, {}):
+                        results[seq][label] = earlier[seq][label]
                     continue
                 od = os.path.join(tmp, seq, label.replace(' ', '_'))
                 if kind == 'mcd':

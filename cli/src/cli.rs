@@ -400,6 +400,11 @@ struct DenoiseCli {
     /// AFN: without the refinement network
     #[arg(long, help_heading = "Learned methods")]
     no_refine: bool,
+    /// WSKP and AFN: without the fallback to the input (where the output differs from the input
+    /// by more than its noise explains, e.g. a clean frame blurred); the papers' methods as
+    /// published
+    #[arg(long, help_heading = "Learned methods")]
+    no_fallback: bool,
     /// Write the colour as f16 [default: the input colour's pixel type]
     #[arg(long, help_heading = "Output", conflicts_with = "float")]
     half: bool,
@@ -515,8 +520,9 @@ struct TrainCli {
     /// WSKP: ImportanceNet layers (3 or 6)
     #[arg(long, value_name = "N", default_value = "6", value_parser = layers)]
     layers: usize,
-    /// WSKP: the window sizes, one importance map each (one size alone: no fusion; the weights file
-    /// records them and `denoise` reads them from it)
+    /// WSKP: the window sizes, one importance map each (one size alone: no fusion); 1 adds the
+    /// input itself, kept per pixel by a learned weight; the weights file records them and
+    /// `denoise` reads them from it
     #[arg(long, value_name = "LIST", default_value = "3,5,7,9,11,13", value_parser = wskp_sizes)]
     sizes: mcdenoise::methods::wskp::Sizes,
     /// Crops per step
@@ -660,6 +666,7 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
         Some(Sub::Denoise(d)) => {
             let mut settings = d.settings.settings();
             settings.refine = !d.no_refine;
+            settings.fallback = !d.no_fallback;
             let half = if d.half {
                 Some(true)
             } else if d.float {

@@ -162,6 +162,7 @@ fn settings_of(
                 }
                 "weights" => s.weights = Some(PathBuf::from(v.extract::<String>()?)),
                 "refine" => s.refine = v.extract()?,
+                "fallback" => s.fallback = v.extract()?,
                 "phi_color" => s.phi_color = Some(real(0.0, 1e6, "a positive number up to 1e6")?),
                 "firefly_clamp" => s.firefly_clamp = Some(real(0.0, 1e6, "a number from 0 (off) up to 1e6")?),
                 "seed" => s.seed = v.extract()?,
@@ -177,8 +178,8 @@ fn settings_of(
                 }
                 other => {
                     return Err(PyTypeError::new_err(format!(
-                        "unexpected keyword argument '{other}' (options: layers, weights, refine, phi_color, \
-                         firefly_clamp, seed, cross_lr, cross_spatial_only, load_state, save_state, isa)"
+                        "unexpected keyword argument '{other}' (options: layers, weights, refine, fallback, \
+                         phi_color, firefly_clamp, seed, cross_lr, cross_spatial_only, load_state, save_state, isa)"
                     )))
                 }
             }
@@ -225,7 +226,8 @@ fn to_array<'py>(py: Python<'py>, planes: Vec<f32>, w: usize, h: usize) -> Bound
 /// precision: f32, f16, f16-arith, fixed.
 /// threads: worker threads (default: every core).
 /// options: layers (WSKP: 3 or 6), weights (a file made by `mcdenoise
-/// train`), refine (AFN, default True), phi_color, firefly_clamp (à-trous),
+/// train`), refine (AFN, default True), fallback (WSKP and AFN, default
+/// True), phi_color, firefly_clamp (à-trous),
 /// seed, cross_lr, cross_spatial_only, load_state, save_state (cross), isa.
 #[pyclass(name = "Denoiser", module = "mcdenoise")]
 struct PyDenoiser {
@@ -394,7 +396,7 @@ impl PyDenoiser {
 /// threads:   worker threads (default: every core)
 /// options:   layers (WSKP: 3 or 6, default 6), weights (a file made by
 ///            `mcdenoise train`; default: the bundled weights), refine (AFN,
-///            default True), phi_color and firefly_clamp (à-trous), seed,
+///            default True), fallback (WSKP and AFN, default True), phi_color and firefly_clamp (à-trous), seed,
 ///            cross_lr and cross_spatial_only (cross), isa (scalar, avx2,
 ///            avx512)
 /// Returns the denoised colour, H x W x 3 float32. Errors: ValueError

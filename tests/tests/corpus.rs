@@ -148,10 +148,6 @@ const DENOISERS: [(&str, MethodKind, usize); 6] = [
     ("cross", MethodKind::Cross, 6),
 ];
 
-/// The relMSE guard's allowance for the learned methods on 64-spp frames
-/// (times the input's; see the guard).
-const LEARNED_64SPP: f64 = 2.0;
-
 /// Whether a method filters the pair's mean (else it reads `A` only).
 fn reads_pair(kind: MethodKind) -> bool {
     matches!(kind, MethodKind::Atrous | MethodKind::SureAtrous | MethodKind::Cross)
@@ -166,8 +162,7 @@ fn relmse(s: &Scene, out: &[Vec<f32>]) -> f64 {
 /// The HDR guard of the demodulation issue, for every method in every
 /// precision on every scene with either noise source: relMSE (the papers'
 /// HDR error) below that of the input the method reads (`A`, or the pair's
-/// mean), at most a quarter of it on the 1-spp scenes, at most twice it for
-/// the learned methods on the 64-spp scenes (a known gap); and no output
+/// mean), at most a quarter of it on the 1-spp scenes; and no output
 /// pixel brighter than twice the brightest reference pixel (a denoiser
 /// removes fireflies, it does not make them). With the old demodulation
 /// threshold a gold sphere's raw albedo split it into pixels divided by 1
@@ -187,22 +182,7 @@ fn every_method_lowers_hdr_error_and_makes_no_fireflies() {
                     continue;
                 }
                 let inp = relmse(&s, if reads_pair(kind) { &mean[..] } else { &a_only[..] });
-                // A known gap, not a pass: the learned filters blur a clean
-                // 64-spp frame's edges (WSKP-3 on the 64-spp box: relMSE
-                // 0.0042 against the input's 0.0024; docs/quality.md).
-                // WSKP cannot pass its input through: a pixel's importance
-                // is shared by every window that holds it, so no two
-                // neighbours can both keep themselves. There they are held
-                // to LEARNED_64SPP times the input's, which still catches
-                // the blow-ups this guard is for (3-14x the input's).
-                let learned = matches!(kind, MethodKind::Wskp | MethodKind::Afn);
-                let bar = if one_spp {
-                    inp / 4.0
-                } else if learned && s.name.contains("64 spp") {
-                    inp * LEARNED_64SPP
-                } else {
-                    inp
-                };
+                let bar = if one_spp { inp / 4.0 } else { inp };
                 let precisions: &[PrecisionKind] = if kind == MethodKind::Cross {
                     &[PrecisionKind::F32]
                 } else {

@@ -201,8 +201,9 @@ fn afn_gradient_matches_finite_differences() {
     }
 }
 
-/// WSKP's training head with one window size (no fusion logits) and with
-/// two sizes (the fusion over them): the gradient of the whole step (the
+/// WSKP's training head with one window size (no fusion logits), with
+/// two sizes (the fusion over them), and each with size 1 (the identity's
+/// weight): the gradient of the whole step (the
 /// ImportanceNet, the importance filter, SMAPE) against finite differences
 /// of its loss.
 #[test]
@@ -214,10 +215,10 @@ fn wskp_gradient_matches_finite_differences_for_subsets_of_sizes() {
     let x = Img::random(wskp::CIN, s, s, 0.0, 1.0, 1).data;
     let data = Img::random(9, s, s, 0.05, 2.0, 2).data;
     let pool = Pool::new(2).unwrap();
-    for sizes in ["7", "3,9"] {
+    for (sizes, outputs) in [("7", 1), ("3,9", 4), ("1,7", 2), ("1,3,9", 5)] {
         let sizes = Sizes::parse(sizes).unwrap();
         let net = wskp::net_for(3, sizes).unwrap();
-        assert_eq!(sizes.outputs(), if sizes.count() == 1 { 1 } else { 4 });
+        assert_eq!(sizes.outputs(), outputs);
         let params = net.init(5);
         let make = |p: &[f32]| {
             let mut tr = Trainer::new(net.clone(), p.to_vec(), 1, s, s, 1e-3, 0.0).unwrap();

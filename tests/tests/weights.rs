@@ -240,7 +240,22 @@ fn window_sizes_round_trip_through_the_weights_file() {
     let one = Sizes::parse("7").unwrap();
     assert_eq!((one.count(), one.outputs(), one.array()[0]), (1, 1, 7));
     assert_eq!(Sizes::ALL.outputs(), 12);
-    for (bad, why) in [("4", "got 4"), ("7,7", "twice"), ("", "expected sizes"), ("15", "got 15"), ("x", "expected")] {
+    // Size 1, the identity: one logit more, not a window.
+    assert_eq!(Sizes::parse("13,1,3,5,7,9,11").unwrap(), Sizes::DEFAULT);
+    assert_eq!(Sizes::DEFAULT.name(), "1,3,5,7,9,11,13");
+    assert_eq!((Sizes::DEFAULT.count(), Sizes::DEFAULT.outputs(), Sizes::DEFAULT.keep()), (6, 13, true));
+    assert!(!Sizes::ALL.keep());
+    let k1 = Sizes::parse("1,7").unwrap();
+    assert_eq!((k1.count(), k1.outputs(), k1.array()[0], k1.name()), (1, 2, 7, "1,7".to_string()));
+    for (bad, why) in [
+        ("4", "got 4"),
+        ("7,7", "twice"),
+        ("", "expected sizes"),
+        ("15", "got 15"),
+        ("x", "expected"),
+        ("1", "at least one window size"),
+        ("1,1,3", "twice"),
+    ] {
         let e = Sizes::parse(bad).unwrap_err();
         assert!(e.contains(why), "'{bad}': {e}");
     }

@@ -21,6 +21,7 @@ mod atrous;
 mod basic;
 pub mod bundled;
 pub mod cross;
+pub mod fallback;
 pub mod features;
 pub mod wskp;
 
@@ -189,6 +190,9 @@ pub struct Settings {
     pub weights: Option<std::path::PathBuf>,
     /// AFN: with the refinement network.
     pub refine: bool,
+    /// WSKP and AFN: fall back towards the input where the output differs
+    /// from it by more than its noise explains ([`fallback`]).
+    pub fallback: bool,
     /// Online methods: the seed of the initial weights.
     pub seed: u64,
     /// Online methods: write the network's state here after every frame.
@@ -216,6 +220,7 @@ impl Default for Settings {
             layers: 6,
             weights: None,
             refine: true,
+            fallback: true,
             seed: crate::methods::cross::SEED,
             save_state: None,
             load_state: None,
@@ -321,13 +326,16 @@ fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Fr
         MethodKind::SureAtrous => Box::new(Atrous::<P>::new(first, true, settings)?),
         MethodKind::Wskp => {
             let file = crate::methods::bundled::wskp(settings.weights.as_deref(), settings.layers)?;
-            Box::new(crate::methods::wskp::Wskp::<P>::new(first, &file, settings.layers)?)
+            Box::new(
+                crate::methods::wskp::Wskp::<P>::new(first, &file, settings.layers)?.with_fallback(settings.fallback),
+            )
         }
         MethodKind::Afn => {
             let file = crate::methods::bundled::afn(settings.weights.as_deref())?;
             Box::new(
                 crate::methods::afn::Afn::<P>::new(first, &file, settings.refine)?
-                    .with_whole_maps(settings.afn_whole_maps),
+                    .with_whole_maps(settings.afn_whole_maps)
+                    .with_fallback(settings.fallback),
             )
         }
         MethodKind::Cross => unreachable!("built above"),

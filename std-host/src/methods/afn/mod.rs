@@ -450,6 +450,8 @@ pub struct Afn<P: HostPrecision> {
     infer: Option<Infer<P>>,
     bufs: Option<Vec<Vec<f32>>>,
     whole_maps: bool,
+    /// With the fallback to the input ([`crate::methods::fallback`]).
+    fallback: bool,
 }
 
 /// The networks ready to run in `P`: the kernel predictor without its
@@ -543,6 +545,8 @@ impl<P: HostPrecision> Afn<P> {
             l.alloc(k1).alloc(6 * s).alloc((6 * s).div_ceil(4)).alloc(3 * s);
             l.alloc(12).free(3 * s);
             l.alloc(4 * RIN as u64 + RIN as u64 * s).alloc(12).temp(12);
+            // The fallback to the input.
+            l.temp(crate::methods::fallback::TEMP_BYTES);
         };
         // The first frame: the accumulation, the TA decode, the buffers (in
         // fixed point, the f32 range runs: the body's tensors kept while the
@@ -602,6 +606,7 @@ impl<P: HostPrecision> Afn<P> {
         if variant != Variant::Fusion {
             plan.skipped.push(("scale compositor", format!("the {} variant filters one image", variant.name())));
         }
+        crate::methods::fallback::plan(&mut plan, true);
         Ok(Afn {
             plan,
             kernel_net: kernel_net()?,
@@ -613,6 +618,7 @@ impl<P: HostPrecision> Afn<P> {
             infer: None,
             bufs: None,
             whole_maps: false,
+            fallback: true,
         })
     }
 
@@ -621,6 +627,14 @@ impl<P: HostPrecision> Afn<P> {
     /// estimate counts it).
     pub fn with_whole_maps(mut self, whole: bool) -> Self {
         self.whole_maps = whole;
+        self
+    }
+
+    /// With or without the fallback to the input
+    /// ([`crate::methods::fallback`]; on unless told).
+    pub fn with_fallback(mut self, on: bool) -> Self {
+        self.fallback = on;
+        crate::methods::fallback::plan(&mut self.plan, on);
         self
     }
 }
@@ -769,6 +783,10 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
             for k in 0..3 * n {
                 out[k] = (i[k] + ex[k]) * alb[k];
             }
+        }
+        if self.fallback {
+            let albedo = f.require(crate::io::frame::Buffer::Albedo, "afn")?;
+            t.time("fallback", || crate::methods::fallback::to_input(ctx, &mut out, &ta, albedo, w, h, e))?;
         }
         Ok(out)
     }

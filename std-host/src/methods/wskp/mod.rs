@@ -36,30 +36,66 @@ pub const CIN: usize = 10;
 
 /// The window sizes a network predicts for: the paper's six, fused, or any
 /// subset of them (one size alone: no fusion logits; the paper's Fig. 9
-/// compares those with the fusion). A bit per size, so it is `Copy`.
+/// compares those with the fusion), and optionally size 1, the identity
+/// (see [`KEEP_BIAS`]). A bit per size, so it is `Copy`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Sizes(u16);
+
+/// The bit of size 1 (the identity window) in [`Sizes`].
+const KEEP: u16 = 1 << 6;
+
+/// The offset of the identity's logit: its weight is
+/// `beta = sigmoid(logit + KEEP_BIAS)`, so a network whose last layer gives
+/// logits near 0 (as it starts) keeps about 2 % of its input.
+///
+/// Size 1 is this project's addition to WSKP. A pixel's importance is
+/// shared by every window that holds it, so no two neighbours can both keep
+/// their own value, and the smallest window is 3x3: the paper's network
+/// cannot leave a clean (e.g. 64-spp) input alone and blurs its edges. With
+/// size 1 the output is `(1 - beta) fused + beta c` per pixel, `c` the
+/// filter's input at the pixel: fusing a 1x1 window (whose normalised
+/// kernel is the identity whatever its importance) with a weight of its own.
+/// Measured, it does not earn its place yet: a WSKP-3 trained with it
+/// (`--sizes 1,3,5,7,9,11,13`, 20k steps) validates level with one without
+/// (31.85 against 31.86 dB) and keeps about 5 % of its input everywhere, at
+/// 4 spp as at 64: it does not learn to tell a clean input from a noisy one
+/// (docs/training.md). The bundled weights do not use it; the learned
+/// methods keep a clean input by the rule of [`crate::methods::fallback`].
+pub const KEEP_BIAS: f32 = -4.0;
 
 impl Sizes {
     /// The six sizes of the paper, fused.
     pub const ALL: Sizes = Sizes(0b11_1111);
-    /// Parses `"3,5,7,9,11,13"` or `"7"` (sizes from [`SIZES`], each once).
+    /// The six sizes and the identity (size 1).
+    pub const DEFAULT: Sizes = Sizes(0b11_1111 | KEEP);
+    /// Parses `"1,3,5,7,9,11,13"`, `"3,5,7,9,11,13"` or `"7"` (sizes from 1
+    /// and [`SIZES`], each once, at least one of [`SIZES`]).
     pub fn parse(s: &str) -> std::result::Result<Sizes, String> {
         let mut bits = 0u16;
         for part in s.split(',') {
-            let k: usize = part.trim().parse().map_err(|_| format!("expected sizes from 3,5,7,9,11,13, got '{s}'"))?;
-            let i = SIZES
-                .iter()
-                .position(|&v| v == k)
-                .ok_or_else(|| format!("expected sizes from 3,5,7,9,11,13, got {k} in '{s}'"))?;
-            if bits & (1 << i) != 0 {
+            let k: usize =
+                part.trim().parse().map_err(|_| format!("expected sizes from 1,3,5,7,9,11,13, got '{s}'"))?;
+            let bit = if k == 1 {
+                KEEP
+            } else {
+                let i = SIZES
+                    .iter()
+                    .position(|&v| v == k)
+                    .ok_or_else(|| format!("expected sizes from 1,3,5,7,9,11,13, got {k} in '{s}'"))?;
+                1 << i
+            };
+            if bits & bit != 0 {
                 return Err(format!("size {k} given twice in '{s}'"));
             }
-            bits |= 1 << i;
+            bits |= bit;
+        }
+        if bits & !KEEP == 0 {
+            return Err(format!("expected at least one window size from 3,5,7,9,11,13 in '{s}'"));
         }
         Ok(Sizes(bits))
     }
-    /// The sizes, ascending, in the first [`Sizes::count`] entries.
+    /// The window sizes (3..13), ascending, in the first [`Sizes::count`]
+    /// entries.
     pub fn array(self) -> [usize; 6] {
         let mut a = [0usize; 6];
         let mut m = 0;
@@ -71,25 +107,32 @@ impl Sizes {
         }
         a
     }
-    /// How many sizes.
+    /// How many window sizes (3..13; size 1 is not one).
     pub fn count(self) -> usize {
-        self.0.count_ones() as usize
+        (self.0 & !KEEP).count_ones() as usize
     }
-    /// The network's output planes: an importance logit per size, and a
-    /// fusion logit per size when there is more than one.
+    /// Whether size 1, the identity, is fused in (its logit is the
+    /// network's last output plane).
+    pub fn keep(self) -> bool {
+        self.0 & KEEP != 0
+    }
+    /// The network's output planes: an importance logit per window size, a
+    /// fusion logit per window size when there is more than one, and the
+    /// identity's logit with size 1.
     pub fn outputs(self) -> usize {
         let m = self.count();
-        if m > 1 {
-            2 * m
-        } else {
-            m
-        }
+        let windows = if m > 1 { 2 * m } else { m };
+        windows + usize::from(self.keep())
     }
-    /// `"3,5,7,9,11,13"`: the form [`Sizes::parse`] reads (and the weights
-    /// files' `sizes` metadata).
+    /// `"1,3,5,7,9,11,13"`: the form [`Sizes::parse`] reads (and the
+    /// weights files' `sizes` metadata).
     pub fn name(self) -> String {
         let a = self.array();
-        a[..self.count()].iter().map(|k| k.to_string()).collect::<Vec<_>>().join(",")
+        let mut v: Vec<String> = a[..self.count()].iter().map(|k| k.to_string()).collect();
+        if self.keep() {
+            v.insert(0, "1".into());
+        }
+        v.join(",")
     }
     /// The sizes of a weights file (its `sizes` metadata; files without it
     /// are the paper's six).
@@ -99,6 +142,12 @@ impl Sizes {
             Some(v) => Sizes::parse(&v).map_err(|e| HostError::Usage(format!("wskp weights: sizes metadata: {e}"))),
         }
     }
+}
+
+/// `sigmoid(l + KEEP_BIAS)`: the identity's weight from its logit.
+#[inline]
+pub fn keep_weight(l: f32) -> f32 {
+    1.0 / (1.0 + (-(l + KEEP_BIAS)).exp())
 }
 
 /// The ImportanceNet with `layers` layers (3 or 6) for the six sizes.
@@ -201,20 +250,57 @@ pub fn head(ws: &mut Workspace, sizes: Sizes, loss: Loss, scale: f32, isa: mcden
         radiance: View::new(&data[..3 * n], 3, w, h)?,
     };
     softmax::fused_filter::<F32>(isa, WindowPath::Separable, &inp, &mut ViewMut::new(out, 3, w, h)?, 0, fs)?;
+    // Size 1: `out = F + beta (d c - F)`, the difference kept in `drad`
+    // until the loss's gradient is known.
+    let kl = sizes.outputs() - 1;
+    if sizes.keep() {
+        let kept = &logits[kl * n..(kl + 1) * n];
+        for ch in 0..3 {
+            for (p, &l) in kept.iter().enumerate() {
+                let k = ch * n + p;
+                let diff = data[3 * n + k] * data[k] - out[k];
+                drad[k] = diff;
+                out[k] += keep_weight(l) * diff;
+            }
+        }
+    }
     // The excess goes back at its pixel (a constant of the loss).
     for k in 0..3 * n {
         out[k] += data[3 * n + k] * data[10 * n + k];
     }
     let l = loss.eval(out, &data[6 * n..9 * n], g, scale, data[9 * n]);
+    let (di, rest) = dy.split_at_mut(m * n);
+    if sizes.keep() {
+        // d/dlogit = sum_ch G (d c - F) beta (1 - beta); the filter's output
+        // gradient is scaled by 1 - beta; the radiance's direct share,
+        // beta d G, waits in `out` (no longer needed).
+        let kept = &logits[kl * n..(kl + 1) * n];
+        let dk = &mut rest[kl * n - m * n..(kl + 1) * n - m * n];
+        for (p, &lg) in kept.iter().enumerate() {
+            let b = keep_weight(lg);
+            let mut s = 0.0f32;
+            for ch in 0..3 {
+                let k = ch * n + p;
+                s += g[k] * drad[k];
+                out[k] = b * data[3 * n + k] * g[k];
+                g[k] *= 1.0 - b;
+            }
+            dk[p] = s * b * (1.0 - b);
+        }
+    }
     let gv = View::new(g, 3, w, h)?;
-    let (di, df) = dy.split_at_mut(m * n);
-    let mut dfv = if m > 1 { Some(ViewMut::new(&mut df[..m * n], m, w, h)?) } else { None };
+    let mut dfv = if m > 1 { Some(ViewMut::new(&mut rest[..m * n], m, w, h)?) } else { None };
     let grads = sgrad::FusedGrads {
         importance: &mut ViewMut::new(di, m, w, h)?,
         fusion: dfv.as_mut(),
         radiance: &mut ViewMut::new(drad, 3, w, h)?,
     };
     sgrad::fused_filter_grad(isa, &inp, &gv, grads, 0, gs)?;
+    if sizes.keep() {
+        for (r, &o) in drad.iter_mut().zip(out.iter()) {
+            *r += o;
+        }
+    }
     Ok(l)
 }
 
@@ -230,6 +316,8 @@ pub struct Wskp<P: HostPrecision> {
     bufs: Option<Bufs>,
     /// The network input, radiance and albedo in the precision (not f32).
     stored: Option<Stored<P::Store>>,
+    /// With the fallback to the input ([`crate::methods::fallback`]).
+    fallback: bool,
 }
 
 /// The network input, radiance and albedo stored in a precision other than f32.
@@ -242,6 +330,8 @@ struct Bufs {
     c: Vec<f32>,
     alb: Vec<f32>,
     ex: Vec<f32>,
+    /// The identity's weight per pixel (size 1; empty without it).
+    keep: Vec<f32>,
 }
 
 impl Bufs {
@@ -252,6 +342,7 @@ impl Bufs {
             c: vec![0.0; 3 * n],
             alb: vec![0.0; 3 * n],
             ex: vec![0.0; 3 * n],
+            keep: Vec::new(),
         }
     }
 }
@@ -283,16 +374,18 @@ impl<P: HostPrecision> Wskp<P> {
         use crate::runtime::precision::{store_bytes, store_is};
         let s = store_bytes::<P>();
         let f32s = store_is::<P, f32>();
-        let bufs = 4 * (3 + 10 + 3 + 3 + 3);
+        let bufs = 4 * (3 + 10 + 3 + 3 + 3 + 1);
         let stored = if f32s { 0 } else { 16 * s };
         // Another layer count is refused when the method is built.
-        let network = net(if layers == 3 { 3 } else { 6 }).expect("3 or 6 layers");
+        let network = net_for(if layers == 3 { 3 } else { 6 }, Sizes::DEFAULT).expect("3 or 6 layers");
         let net = crate::nn::infer::held_bytes_per_pixel(&network, s);
         let output = |l: &mut crate::runtime::memory::Ledger| {
             l.alloc(12);
             if !f32s {
                 l.temp(3 * s);
             }
+            // The fallback to the input.
+            l.temp(crate::methods::fallback::TEMP_BYTES);
         };
         let mut first = crate::runtime::memory::Ledger::default();
         let history = TemporalAccumulation::<P>::step_ledger(info, &mut first);
@@ -324,10 +417,20 @@ impl<P: HostPrecision> Wskp<P> {
         plan.built.push(if layers == 6 { "ImportanceNet (6 layers)" } else { "ImportanceNet (3 layers)" });
         plan.built.push(match sizes {
             Sizes::ALL => "fused importance filter (sizes 3..13)",
+            Sizes::DEFAULT => "fused importance filter (sizes 3..13, and 1: the input kept by a learned weight)",
             s if s.count() == 1 => "importance filter (one window size, the weights' sizes metadata)",
             _ => "fused importance filter (the weights' sizes metadata)",
         });
-        Ok(Wskp { plan, sizes, net, params, ta, infer: None, bufs: None, stored: None })
+        crate::methods::fallback::plan(&mut plan, true);
+        Ok(Wskp { plan, sizes, net, params, ta, infer: None, bufs: None, stored: None, fallback: true })
+    }
+
+    /// With or without the fallback to the input
+    /// ([`crate::methods::fallback`]; on unless told).
+    pub fn with_fallback(mut self, on: bool) -> Self {
+        self.fallback = on;
+        crate::methods::fallback::plan(&mut self.plan, on);
+        self
     }
 }
 
@@ -356,7 +459,10 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
                 &bufs.ta
             }
         };
-        t.time("network inputs", || inputs(&ctx.pool, f, ta, &mut bufs.x, &mut bufs.c, &mut bufs.alb, &mut bufs.ex))?;
+        let a = f.require(crate::io::frame::Buffer::Albedo, "wskp")?;
+        let exposure = t.time("network inputs", || {
+            inputs(&ctx.pool, f, ta, &mut bufs.x, &mut bufs.c, &mut bufs.alb, &mut bufs.ex)
+        })?;
         if self.infer.is_none() {
             // Fixed point: the formats from an f32 run on the first frame.
             let ranges = if P::FIXED_POINT {
@@ -392,6 +498,15 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
         let logits = t.time("ImportanceNet", || infer.run_view(ctx, xv))?;
         let lv = logits.view();
         let (arr, m) = (self.sizes.array(), self.sizes.count());
+        if self.sizes.keep() {
+            // Size 1: the identity's weight, from its logit (the last plane).
+            let kl = self.sizes.outputs() - 1;
+            bufs.keep.resize(n, 0.0);
+            P::decode(&logits.data[kl * n..(kl + 1) * n], &mut bufs.keep, logits.frac);
+            for v in bufs.keep.iter_mut() {
+                *v = keep_weight(*v);
+            }
+        }
         let inp = FusedInputs {
             sizes: &arr[..m],
             importance: lv.channels_range(0, m)?,
@@ -426,9 +541,23 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
                 t.time("decode", || P::decode(&o.data, &mut out, o.frac));
             }
         }
+        // Size 1, in f32 in every precision: `(1 - beta) fused + beta d c`.
+        if self.sizes.keep() {
+            for ch in 0..3 {
+                let r = ch * n..(ch + 1) * n;
+                for (((o, &d), &c), &b) in
+                    out[r.clone()].iter_mut().zip(&bufs.alb[r.clone()]).zip(&bufs.c[r]).zip(&bufs.keep)
+                {
+                    *o += b * (d * c - *o);
+                }
+            }
+        }
         // The excess the filter left out goes back at its pixel, remodulated.
         for ((o, &d), &e) in out.iter_mut().zip(&bufs.alb).zip(&bufs.ex) {
             *o += d * e;
+        }
+        if self.fallback {
+            t.time("fallback", || crate::methods::fallback::to_input(ctx, &mut out, ta, a, w, h, exposure))?;
         }
         Ok(out)
     }

@@ -1,0 +1,226 @@
+//! The learned filters' fallback to their input: where a network's output
+//! differs from the image it filtered by clearly more than that image's
+//! noise explains, the difference is the filter's own error (a blurred
+//! edge, a clean 64-spp frame smoothed, a light leaking into the wall beside
+//! it), and the output moves back towards the input. WSKP and AFN end with
+//! it in every precision (in f32, on their decoded output).
+//!
+//! With `y` the input (the temporally accumulated radiance the filters
+//! read), `o` the output and `v` the input's noise variance, `(o - y)^2 - v`
+//! estimates the output's squared error (its bias, when the output's own
+//! noise is small), and the blend `y + k (o - y)` with
+//! `k = v / (v + max(e - M v, 0))` minimises the expected error of a blend
+//! of two estimates with independent errors (the shrinkage of the
+//! SURE-based filter, Kim et al. 2016, applied to the network's residual).
+//! Everything is taken in exposure-normalised `log1p` colour (at 1 spp
+//! linear values are ruled by single fireflies; the exposure keeps
+//! `denoise(k x) = k denoise(x)`), summed over the channels and over the
+//! pixels of a 7x7 window whose albedo matches the centre's (one pixel's
+//! estimate is all noise; a light's partially covered edge beside a wall
+//! reads as noise and, counted, would hide the wall pixel's error).
+//!
+//! The margin `M` leaves the output alone unless its excess is clearly
+//! above the noise: at 1 spp the estimates are themselves noisy and a `k`
+//! pulled under 1 by that noise would put noise back, so `M` is 2 where the
+//! window's mean noise variance is [`NOISY`] or more, falling to 1 (the
+//! plain estimate) on a clean input.
+//!
+//! The input's noise comes from the image itself (one estimate): the local
+//! estimate of the à-trous methods ([`mcdenoise_core::atrous::noise`]),
+//! `0.84 |y - median of the 8 neighbours|^2`. (Its 3x3 median, which the
+//! à-trous colour gate uses, falls short at 1 spp, where most pixels'
+//! neighbourhoods are dark: on the corpus' 1-spp rooms it put the noise back,
+//! relMSE 0.018 -> 0.13.) `cross` has its own rule with the pair's variance
+//! (`cross::blend_by_error`).
+//!
+//! Measured on the test corpus (`tests/tests/corpus.rs`, relMSE, bundled
+//! weights, without -> with): WSKP-3 on the 64-spp box 0.0042 -> 0.0020
+//! (the input: 0.0024), on the 64-spp Cornell box 0.0040 -> 0.0022 (input
+//! 0.0045); WSKP-6 0.0044 -> 0.0016 and 0.0059 -> 0.0023; the 1-spp rooms
+//! within -7 % / +4 %. docs/quality.md has the foreign sequences.
+
+use mcdenoise_core::atrous::noise;
+use mcdenoise_core::{View, ViewMut};
+
+use crate::error::Result;
+use crate::methods::Ctx;
+
+/// Half the side of the window (7x7).
+pub const RADIUS: usize = 3;
+/// How many times the input's noise variance the output's squared
+/// difference from it must exceed before the output moves towards it.
+pub const MARGIN: f32 = 2.0;
+/// The mean noise variance (per channel, exposure-normalised `log1p`
+/// colour) from which the margin is [`MARGIN`]; below it the margin falls
+/// linearly to 1 at no noise.
+pub const NOISY: f32 = 0.05;
+
+/// Two albedos count as the same surface's within this fraction of the
+/// larger (per channel) plus [`ALBEDO_FLOOR`].
+pub const ALBEDO_TOL: f32 = 0.2;
+/// See [`ALBEDO_TOL`].
+pub const ALBEDO_FLOOR: f32 = 0.02;
+
+/// Bytes per pixel [`to_input`] allocates for the time it runs.
+pub const TEMP_BYTES: u64 = 4 * 6;
+
+/// Records the stage in a method's plan: built, or skipped by
+/// `--no-fallback` (replacing an earlier entry of either kind).
+pub fn plan(plan: &mut crate::methods::Plan, on: bool) {
+    plan.built.retain(|s| *s != STAGE);
+    plan.skipped.retain(|(s, _)| *s != STAGE);
+    if on {
+        plan.built.push(STAGE);
+    } else {
+        plan.skipped.push((STAGE, "--no-fallback".into()));
+    }
+}
+
+/// The stage's name in plans.
+pub const STAGE: &str = "fallback to the input";
+
+/// Moves the output `o` (3 planes, linear) towards the input `y` (3 planes)
+/// where it differs from it by more than `y`'s noise explains (see the
+/// module).
+pub fn to_input(
+    ctx: &mut Ctx,
+    o: &mut [f32],
+    y: &[f32],
+    albedo: &[f32],
+    w: usize,
+    h: usize,
+    exposure: f32,
+) -> Result<()> {
+    let n = w * h;
+    if n == 0 {
+        return Ok(());
+    }
+    let e = if exposure > 0.0 && exposure.is_finite() { exposure } else { 1.0 };
+    let log = |v: f32| if v.is_finite() { (e * v).max(0.0).ln_1p() } else { 0.0 };
+    let ly: Vec<f32> = y.iter().map(|&v| log(v)).collect();
+    let mut raw = vec![0.0f32; n];
+    {
+        let src = View::new(&ly, 3, w, h)?;
+        let (pool, scratch) = (&ctx.pool, &mut ctx.scratch);
+        pool.bands(ViewMut::new(&mut raw, 1, w, h)?, 16, scratch, 0, |b, y0, _| noise::local_noise_rows(&src, b, y0))?;
+    }
+    // The channels' sums (the estimates are their means), and the squared
+    // difference in the same colour.
+    let mut err = vec![0.0f32; n];
+    for i in 0..n {
+        let mut d2 = 0.0f32;
+        for c in 0..3 {
+            let d = log(o[c * n + i]) - ly[c * n + i];
+            d2 += d * d;
+        }
+        let fin = |v: f32| if v.is_finite() { v.min(1e12) } else { 1e12 };
+        raw[i] = fin(3.0 * raw[i]);
+        err[i] = fin(d2);
+    }
+    // Window sums over the pixels of the same albedo as the centre (within
+    // ALBEDO_TOL of the larger, per channel): a light's partially covered
+    // edge beside a wall reads as noise and would hide the wall pixel's
+    // error.
+    let mut ks = vec![1.0f32; n];
+    ctx.pool.planes(vec![&mut ks[..]], 1 << 12, |start, runs| {
+        for (j, k) in runs[0].iter_mut().enumerate() {
+            let i = start + j;
+            let (px, py) = (i % w, i / w);
+            let ap = [albedo[i], albedo[n + i], albedo[2 * n + i]];
+            let (mut vs, mut es, mut cnt) = (0.0f32, 0.0f32, 0.0f32);
+            for qy in py.saturating_sub(RADIUS)..(py + RADIUS + 1).min(h) {
+                for qx in px.saturating_sub(RADIUS)..(px + RADIUS + 1).min(w) {
+                    let q = qy * w + qx;
+                    let same = (0..3).all(|c| {
+                        let aq = albedo[c * n + q];
+                        (aq - ap[c]).abs() <= ALBEDO_TOL * aq.abs().max(ap[c].abs()) + ALBEDO_FLOOR
+                    });
+                    if same {
+                        vs += raw[q];
+                        es += err[q];
+                        cnt += 1.0;
+                    }
+                }
+            }
+            *k = blend_weight(vs, es, vs / (3.0 * cnt.max(1.0)));
+        }
+    });
+    for i in 0..n {
+        let k = ks[i];
+        for c in 0..3 {
+            let (yv, ov) = (y[c * n + i], o[c * n + i]);
+            let out = yv + k * (ov - yv);
+            if out.is_finite() {
+                o[c * n + i] = out.max(0.0);
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The margin at a window's mean noise variance `vbar` (per channel, in
+/// exposure-normalised `log1p` colour): from 1 on a clean input to
+/// [`MARGIN`] from [`NOISY`] on.
+#[inline]
+pub fn margin(vbar: f32) -> f32 {
+    1.0 + (MARGIN - 1.0) * (vbar / NOISY).clamp(0.0, 1.0)
+}
+
+/// The output's weight from the input's noise `v` and the squared
+/// difference `e` (window sums), at mean noise `vbar`:
+/// `v / (v + max(e - M v, 0))` with `M = margin(vbar)`, 1 where both
+/// vanish.
+#[inline]
+pub fn blend_weight(v: f32, e: f32, vbar: f32) -> f32 {
+    let bias2 = (e - margin(vbar) * v).max(0.0);
+    if v + bias2 > 0.0 {
+        v / (v + bias2)
+    } else {
+        1.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A flat input whose output carries a step: the window sees no noise in
+    /// the input, so the output returns to it; an input with strong noise
+    /// and an output equal to its smooth mean is left alone.
+    #[test]
+    fn keeps_a_clean_input_and_leaves_a_denoised_noisy_one() {
+        let mut ctx = crate::methods::context(&crate::methods::Settings::default()).unwrap();
+        let (w, h) = (24, 20);
+        let n = w * h;
+        let y = vec![0.5f32; 3 * n];
+        let mut o: Vec<f32> = (0..3 * n).map(|i| if (i % n) % w < w / 2 { 0.3 } else { 0.7 }).collect();
+        to_input(&mut ctx, &mut o, &y, &vec![0.5; 3 * n], w, h, 1.0).unwrap();
+        assert!(o.iter().all(|&v| (v - 0.5).abs() < 1e-6), "a clean input is kept");
+        // Noisy input (deterministic hash noise), output its mean.
+        let mut s = 12345u32;
+        let y: Vec<f32> = (0..3 * n)
+            .map(|_| {
+                s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                0.5 + ((s >> 8) as f32 / (1u32 << 24) as f32 - 0.5)
+            })
+            .collect();
+        let mean = y.iter().sum::<f32>() / (3 * n) as f32;
+        let mut o = vec![mean; 3 * n];
+        to_input(&mut ctx, &mut o, &y, &vec![0.5; 3 * n], w, h, 1.0).unwrap();
+        assert!(o.iter().all(|&v| (v - mean).abs() < 1e-6), "noise removed is not put back");
+    }
+
+    /// The weight against the formula in f64.
+    #[test]
+    fn blend_weight_is_the_formula() {
+        for &(v, e) in &[(1.0f32, 0.5f32), (1.0, 2.0), (1.0, 3.0), (0.1, 10.0), (0.0, 1.0), (0.0, 0.0), (2.0, 100.0)] {
+            // NOISY = 0.05: the margin from 1 at no noise to 2 there.
+            for &(vbar, m) in &[(0.0f32, 1.0f64), (0.005, 1.1), (0.025, 1.5), (0.05, 2.0), (0.5, 2.0)] {
+                let (v64, e64) = (v as f64, e as f64);
+                let b = (e64 - m * v64).max(0.0);
+                let k = if v64 + b > 0.0 { v64 / (v64 + b) } else { 1.0 };
+                assert!((blend_weight(v, e, vbar) as f64 - k).abs() < 1e-6, "v {v} e {e} vbar {vbar}");
+            }
+        }
+    }
+}
