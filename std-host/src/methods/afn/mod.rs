@@ -786,7 +786,8 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
         }
         if self.fallback {
             let albedo = f.require(crate::io::frame::Buffer::Albedo, "afn")?;
-            t.time("fallback", || crate::methods::fallback::to_input(ctx, &mut out, &ta, albedo, w, h, e))?;
+            let colour = f.require(crate::io::frame::Buffer::Color, "afn")?;
+            t.time("fallback", || crate::methods::fallback::to_input(ctx, &mut out, colour, albedo, w, h, e))?;
         }
         Ok(out)
     }

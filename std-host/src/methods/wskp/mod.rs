@@ -557,7 +557,8 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
             *o += d * e;
         }
         if self.fallback {
-            t.time("fallback", || crate::methods::fallback::to_input(ctx, &mut out, ta, a, w, h, exposure))?;
+            let colour = f.require(crate::io::frame::Buffer::Color, "wskp")?;
+            t.time("fallback", || crate::methods::fallback::to_input(ctx, &mut out, colour, a, w, h, exposure))?;
         }
         Ok(out)
     }
