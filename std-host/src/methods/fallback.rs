@@ -21,16 +21,19 @@
 //!
 //! The current frame, not the temporal accumulation the filters read: the
 //! accumulation's error is the output's too (a light that moved lags in
-//! both), so it cannot tell the output's error apart. On the foreign set
-//! (docs/quality.md) the current frame gives +0.4 to +1.7 dB over the
-//! accumulation as `y` on the orbit, the corridor and the moving light, and
-//! -0.35 dB on the camera pan.
+//! both), so it cannot tell the output's error apart.
 //!
 //! The margin `M` leaves the output alone unless its excess is clearly
-//! above the noise: at 1 spp the estimates are themselves noisy and a `k`
-//! pulled under 1 by that noise would put noise back, so `M` is 2 where the
-//! window's mean noise variance is [`NOISY`] or more, falling to 1 (the
-//! plain estimate) on a clean input.
+//! above the noise: `M` is 2 where the window's mean noise variance is
+//! [`NOISY`] or more, falling to 1 (the plain estimate) on a clean input.
+//!
+//! Only on frames that are not 1-spp-noisy ([`fade`]): at 1 spp the noise
+//! estimate of a dark region is itself unreliable (most samples are 0), and
+//! where the output is truly off (a light that moved, which the
+//! accumulation lags) the blend brought the 1-spp noise back in blotches:
+//! better PSNR and relMSE on the foreign moving-light sequence (+1.7 dB),
+//! a worse picture. The frame's noise level, the median over the pixels of
+//! their window's mean noise variance, separates the sample counts.
 //!
 //! The input's noise comes from the image itself (one estimate): the local
 //! estimate of the à-trous methods ([`mcdenoise_core::atrous::noise`]),
@@ -40,11 +43,12 @@
 //! relMSE 0.018 -> 0.13.) `cross` has its own rule with the pair's variance
 //! (`cross::blend_by_error`).
 //!
-//! Measured on the test corpus (`tests/tests/corpus.rs`, relMSE, bundled
-//! weights, without -> with): WSKP-3 on the 64-spp box 0.0042 -> 0.0020
-//! (the input: 0.0024), on the 64-spp Cornell box 0.0040 -> 0.0022 (input
-//! 0.0045); WSKP-6 0.0044 -> 0.0016 and 0.0059 -> 0.0023; the 1-spp rooms
-//! within -7 % / +4 %. docs/quality.md has the foreign sequences.
+//! Measured (relMSE, bundled weights, without -> with): on the test corpus
+//! (`tests/tests/corpus.rs`) WSKP-3 on the 64-spp box 0.0042 -> 0.0022 (the
+//! input: 0.0024) and the 64-spp Cornell box 0.0040 -> 0.0027 (0.0045);
+//! WSKP-6 0.0044 -> 0.0016 and 0.0059 -> 0.0025; the 1-spp rooms
+//! unchanged. On the foreign Cornell box (docs/quality.md) at 16 spp +1.3
+//! to +1.5 dB, at 64 spp +2.2 to +3.7 dB; the 1-spp sequences unchanged.
 
 use mcdenoise_core::atrous::noise;
 use mcdenoise_core::{View, ViewMut};
@@ -74,7 +78,7 @@ pub const ALBEDO_TOL: f32 = 0.2;
 pub const ALBEDO_FLOOR: f32 = 0.02;
 
 /// Bytes per pixel [`to_input`] allocates for the time it runs.
-pub const TEMP_BYTES: u64 = 4 * 6;
+pub const TEMP_BYTES: u64 = 4 * 7;
 
 /// Records the stage in a method's plan: built, or skipped by
 /// `--no-fallback` (replacing an earlier entry of either kind).
@@ -116,6 +120,24 @@ pub fn to_input(
         let (pool, scratch) = (&ctx.pool, &mut ctx.scratch);
         pool.bands(ViewMut::new(&mut raw, 1, w, h)?, 16, scratch, 0, |b, y0, _| noise::local_noise_rows(&src, b, y0))?;
     }
+    // The frame's noise level: the median over the pixels of the 7x7
+    // window mean of the estimate (per channel). A 1-spp frame ends here.
+    let level = {
+        let mut m = raw.clone();
+        for v in m.iter_mut() {
+            *v = if v.is_finite() { v.min(1e12) } else { 1e12 };
+        }
+        crate::methods::features::box_sum(&mut m, w, h, RADIUS);
+        let span = |p: usize, len: usize| ((p + RADIUS).min(len - 1) - p.saturating_sub(RADIUS) + 1) as f32;
+        for (i, v) in m.iter_mut().enumerate() {
+            *v /= span(i % w, w) * span(i / w, h);
+        }
+        *m.select_nth_unstable_by(n / 2, |a, b| a.total_cmp(b)).1
+    };
+    let s = fade(level);
+    if s >= 1.0 {
+        return Ok(());
+    }
     // The channels' sums (the estimates are their means), and the squared
     // difference in the same colour.
     let mut err = vec![0.0f32; n];
@@ -134,10 +156,8 @@ pub fn to_input(
     // edge beside a wall reads as noise and would hide the wall pixel's
     // error.
     let mut ks = vec![1.0f32; n];
-    let mut vbars = vec![0.0f32; n];
-    ctx.pool.planes(vec![&mut ks[..], &mut vbars[..]], 1 << 12, |start, runs| {
-        let (kr, vr) = runs.split_at_mut(1);
-        for (j, (k, vb)) in kr[0].iter_mut().zip(vr[0].iter_mut()).enumerate() {
+    ctx.pool.planes(vec![&mut ks[..]], 1 << 12, |start, runs| {
+        for (j, k) in runs[0].iter_mut().enumerate() {
             let i = start + j;
             let (px, py) = (i % w, i / w);
             let ap = [albedo[i], albedo[n + i], albedo[2 * n + i]];
@@ -156,17 +176,9 @@ pub fn to_input(
                     }
                 }
             }
-            *vb = vs / (3.0 * cnt.max(1.0));
-            *k = blend_weight(vs, es, *vb);
+            *k = blend_weight(vs, es, vs / (3.0 * cnt.max(1.0)));
         }
     });
-    // The frame's noise level: the median window.
-    let mid = n / 2;
-    let level = *vbars.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1;
-    let s = fade(level);
-    if s >= 1.0 {
-        return Ok(());
-    }
     for k in ks.iter_mut() {
         *k += s * (1.0 - *k);
     }
@@ -184,8 +196,8 @@ pub fn to_input(
 }
 
 /// How far the fallback is faded out (0: fully on, 1: off) at the frame's
-/// noise level `level` (the median over the pixels of their window's mean
-/// noise variance): on from [`FADE_FROM`] down, off from [`FADE_TO`] up. On
+/// noise level `level` (the median over the pixels of the 7x7 window mean
+/// of their noise variance, every pixel of the window): on from [`FADE_FROM`] down, off from [`FADE_TO`] up. On
 /// a noisy frame the output's difference from the input is mostly the
 /// noise removed, and where it is not, a blend puts the input's noise back
 /// in patches: with a light that moved, which the temporal accumulation
