@@ -312,21 +312,25 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
     // albedo well under its neighbours'), then the 3x3 maximum.
     let amax: Vec<f32> = (0..n).map(|p| albedo[p].max(albedo[n + p]).max(albedo[2 * n + p]).clamp(0.0, 1.0)).collect();
     let none: Vec<f32> = (0..n).map(|p| 1.0 - albedo_weight([albedo[p], albedo[n + p], albedo[2 * n + p]])).collect();
+    // (Each neighbourhood pass writes its planes in runs of pixels on
+    // `pool`, reading only planes made before it.)
+    const RUN: usize = 1 << 13;
     let mut covered = vec![0.0f32; n];
-    for y in 0..h {
-        for x in 0..w {
+    pool.planes(vec![&mut covered[..]], RUN, |start, runs| {
+        for (i, o) in runs[0].iter_mut().enumerate() {
+            let p = start + i;
+            let (x, y) = (p % w, p / w);
             let mut m = 0.0f32;
             for yy in y.saturating_sub(1)..(y + 2).min(h) {
                 for xx in x.saturating_sub(1)..(x + 2).min(w) {
                     m = m.max(amax[yy * w + xx]);
                 }
             }
-            let p = y * w + x;
             if m > 0.0 {
-                covered[p] = ((1.0 - amax[p] / m - PARTIAL_FROM) / (PARTIAL_FULL - PARTIAL_FROM)).clamp(0.0, 1.0);
+                *o = ((1.0 - amax[p] / m - PARTIAL_FROM) / (PARTIAL_FULL - PARTIAL_FROM)).clamp(0.0, 1.0);
             }
         }
-    }
+    });
     // A covered pixel counts only near another emitter pixel at least half
     // as bright, within 2 pixels (a light is a line or a region; a firefly
     // on the dark side of a texture's edge is alone, and is averaged). At
@@ -340,10 +344,12 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
     // times it (pixels without albedo may be glass or a mirror, noisy at
     // 1 spp: they keep the wider level).
     let mut tight = vec![0.0f32; n];
-    for y in 0..h {
-        for x in 0..w {
-            let p = y * w + x;
-            if covered[p] <= keep0[p] {
+    pool.planes(vec![&mut keep0[..], &mut tight[..]], RUN, |start, runs| {
+        let (k0, ti) = runs.split_at_mut(1);
+        for (i, (k0, ti)) in k0[0].iter_mut().zip(ti[0].iter_mut()).enumerate() {
+            let p = start + i;
+            let (x, y) = (p % w, p / w);
+            if covered[p] <= *k0 {
                 continue;
             }
             let mut supported = false;
@@ -354,19 +360,20 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
                 }
             }
             if supported {
-                keep0[p] = covered[p];
-                tight[p] = covered[p];
+                *k0 = covered[p];
+                *ti = covered[p];
             }
         }
-    }
+    });
     // An emitter with albedo (a light's own diffuse surface): bright and
     // smooth, its 3x3 neighbourhood within SMOOTH of its largest value. Noisy
     // surfaces are not; a smooth one's excess stays at its pixel as
     // accurate as it came.
     let mut core = none.clone();
-    for y in 0..h {
-        for x in 0..w {
-            let p = y * w + x;
+    pool.planes(vec![&mut core[..], &mut keep0[..], &mut tight[..]], RUN, |start, runs| {
+        for i in 0..runs[0].len() {
+            let p = start + i;
+            let (x, y) = (p % w, p / w);
             if lum[p] <= floor {
                 continue;
             }
@@ -378,20 +385,23 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
                 }
             }
             if lo >= SMOOTH * hi {
-                core[p] = 1.0;
-                keep0[p] = 1.0;
-                tight[p] = 1.0;
+                for r in runs.iter_mut() {
+                    r[i] = 1.0;
+                }
             }
         }
-    }
+    });
     if keep0.iter().all(|&k| k == 0.0) {
         excess[..3 * n].fill(0.0);
         return;
     }
     const OUTLINE: usize = 2;
     let mut keep = vec![0.0f32; n];
-    for y in 0..h {
-        for x in 0..w {
+    let (core, keep0) = (&core, &keep0);
+    pool.planes(vec![&mut keep[..]], RUN, |start, runs| {
+        for (i, o) in runs[0].iter_mut().enumerate() {
+            let p = start + i;
+            let (x, y) = (p % w, p / w);
             let mut m = 0.0f32;
             for yy in y.saturating_sub(OUTLINE)..(y + OUTLINE + 1).min(h) {
                 for xx in x.saturating_sub(OUTLINE)..(x + OUTLINE + 1).min(w) {
@@ -401,9 +411,9 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
             // The outline of an emitter (two pixels: the smoothness test
             // leaves out a light's last pixel row and the one inside it,
             // whose 3x3 reaches the dark side); a covered pixel itself.
-            keep[y * w + x] = m.max(keep0[y * w + x]);
+            *o = m.max(keep0[p]);
         }
-    }
+    });
     // Box sums over the reach of (1 - keep) lum(c) and (1 - keep).
     let r = EXCESS_RADIUS;
     let mut num = vec![0.0f32; n];
@@ -455,7 +465,7 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
 /// energy: a 1-spp firefly of 1000 times its neighbours, spread over a
 /// 7x7 window, leaves a 20-times-too-bright blotch; clamped, it leaves
 /// nothing (a small bias, OIDN's choice too).
-pub fn clamp_fireflies(c: &mut [f32], radiance: &[f32], albedo: &[f32], w: usize, h: usize) {
+pub fn clamp_fireflies(pool: &Pool, c: &mut [f32], radiance: &[f32], albedo: &[f32], w: usize, h: usize) {
     let n = w * h;
     if n == 0 || c.len() < 3 * n || radiance.len() < 3 * n || albedo.len() < 3 * n {
         return;
@@ -465,38 +475,46 @@ pub fn clamp_fireflies(c: &mut [f32], radiance: &[f32], albedo: &[f32], w: usize
     let mut s2: Vec<f32> = s1.iter().map(|&v| v * v).collect();
     box_sum(&mut s1, w, h, 2);
     box_sum(&mut s2, w, h, 2);
-    for i in 0..n {
-        let li = lum[i];
-        // (NaN fails the test too.)
-        if li.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) || is_emitter(albedo, n, i) {
-            continue;
-        }
-        let (y, x) = (i / w, i % w);
-        let cnt = (((x + 3).min(w) - x.saturating_sub(2)) * ((y + 3).min(h) - y.saturating_sub(2))) as f64 - 1.0;
-        if cnt < 1.0 {
-            continue;
-        }
-        let (a, b) = (s1[i] as f64 - li as f64, s2[i] as f64 - li as f64 * li as f64);
-        let m = a / cnt;
-        let sd = (b / cnt - m * m).max(0.0).sqrt();
-        let t = m + FIREFLY_K as f64 * sd;
-        if (li as f64) > t {
-            let f = (t.max(0.0) / li as f64) as f32;
-            for ch in 0..3 {
-                c[ch * n + i] *= f;
+    let (lum, s1, s2) = (&lum, &s1, &s2);
+    pool.planes(c[..3 * n].chunks_mut(n).collect(), 1 << 14, |start, runs| {
+        for j in 0..runs[0].len() {
+            let i = start + j;
+            let li = lum[i];
+            // (NaN fails the test too.)
+            if li.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) || is_emitter(albedo, n, i) {
+                continue;
+            }
+            let (y, x) = (i / w, i % w);
+            let cnt = (((x + 3).min(w) - x.saturating_sub(2)) * ((y + 3).min(h) - y.saturating_sub(2))) as f64 - 1.0;
+            if cnt < 1.0 {
+                continue;
+            }
+            let (a, b) = (s1[i] as f64 - li as f64, s2[i] as f64 - li as f64 * li as f64);
+            let m = a / cnt;
+            let sd = (b / cnt - m * m).max(0.0).sqrt();
+            let t = m + FIREFLY_K as f64 * sd;
+            if (li as f64) > t {
+                let f = (t.max(0.0) / li as f64) as f32;
+                for r in runs.iter_mut() {
+                    r[j] *= f;
+                }
             }
         }
-    }
+    });
 }
 
 /// In place: each value becomes the sum over the `(2r+1)^2` window around
-/// it (clipped at the border), by running sums along rows then columns.
+/// it (clipped at the border): running sums along each row, then a window
+/// of rows sliding down the image (row-major throughout; sums in f64).
 pub(crate) fn box_sum(v: &mut [f32], w: usize, h: usize, r: usize) {
-    let mut tmp = vec![0.0f64; w.max(h)];
+    if w == 0 || h == 0 {
+        return;
+    }
+    let mut tmp = vec![0.0f64; w];
     for y in 0..h {
         let row = &mut v[y * w..(y + 1) * w];
         let mut acc = 0.0f64;
-        for (x, t) in tmp[..w].iter_mut().enumerate() {
+        for (x, t) in tmp.iter_mut().enumerate() {
             acc += row[x] as f64;
             *t = acc;
         }
@@ -506,20 +524,28 @@ pub(crate) fn box_sum(v: &mut [f32], w: usize, h: usize, r: usize) {
             *o = (hi - lo) as f32;
         }
     }
-    let mut col = vec![0.0f32; h];
-    for x in 0..w {
-        let mut acc = 0.0f64;
-        for y in 0..h {
-            acc += v[y * w + x] as f64;
-            tmp[y] = acc;
+    let rows = v.to_vec();
+    let row = |y: usize| &rows[y * w..(y + 1) * w];
+    let col = &mut tmp;
+    col.fill(0.0);
+    for y in 0..=r.min(h - 1) {
+        for (c, &x) in col.iter_mut().zip(row(y)) {
+            *c += x as f64;
         }
-        for (y, o) in col.iter_mut().enumerate() {
-            let hi = tmp[(y + r).min(h - 1)];
-            let lo = if y > r { tmp[y - r - 1] } else { 0.0 };
-            *o = (hi - lo) as f32;
+    }
+    for y in 0..h {
+        for (o, &c) in v[y * w..(y + 1) * w].iter_mut().zip(col.iter()) {
+            *o = c as f32;
         }
-        for y in 0..h {
-            v[y * w + x] = col[y];
+        if y + r + 1 < h {
+            for (c, &x) in col.iter_mut().zip(row(y + r + 1)) {
+                *c += x as f64;
+            }
+        }
+        if y >= r {
+            for (c, &x) in col.iter_mut().zip(row(y - r)) {
+                *c -= x as f64;
+            }
         }
     }
 }
@@ -764,5 +790,27 @@ mod tests {
             assert!((ek * k / e1 - 1.0).abs() < 1e-5, "k {k}: {ek} {e1}");
         }
         assert_eq!(exposure(&vec![0.0; 3 * w * h], w, h), 1.0);
+    }
+
+    /// Window sums against the sums written out in f64, at sizes and radii
+    /// from one pixel to windows larger than the image.
+    #[test]
+    fn box_sum_is_the_window_sum() {
+        for &(w, h, r) in &[(1usize, 1usize, 0usize), (7, 5, 1), (9, 13, 3), (4, 3, 6), (31, 17, 2), (16, 40, 7)] {
+            let v: Vec<f32> = (0..w * h).map(|i| ((i * 37 + 11) % 23) as f32 * 0.25 - 2.0).collect();
+            let mut got = v.clone();
+            box_sum(&mut got, w, h, r);
+            for y in 0..h {
+                for x in 0..w {
+                    let mut s = 0.0f64;
+                    for qy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                        for qx in x.saturating_sub(r)..(x + r + 1).min(w) {
+                            s += v[qy * w + qx] as f64;
+                        }
+                    }
+                    assert!((got[y * w + x] as f64 - s).abs() < 1e-4, "{w}x{h} r {r} at ({x}, {y})");
+                }
+            }
+        }
     }
 }

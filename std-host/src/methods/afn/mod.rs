@@ -161,8 +161,8 @@ pub fn inputs(
     let a = f.require(Buffer::Albedo, "afn")?;
     features::demodulation(pool, a, f.width, f.height, d);
     features::network_inputs(pool, f, "afn", e, &[r, t], d, x, &mut [&mut *c1, &mut *ct])?;
-    features::clamp_fireflies(c1, r, a, f.width, f.height);
-    features::clamp_fireflies(ct, t, a, f.width, f.height);
+    features::clamp_fireflies(pool, c1, r, a, f.width, f.height);
+    features::clamp_fireflies(pool, ct, t, a, f.width, f.height);
     // The TA image's excess is dropped (`ex` holds it for a moment): the
     // 1-spp image's goes back.
     features::split_excess(pool, ct, a, f.width, f.height, e, ex);

@@ -202,7 +202,7 @@ pub fn inputs(
     features::demodulation(pool, a, w, h, d);
     let e = features::exposure(f.require(Buffer::Color, "wskp")?, w, h);
     features::network_inputs(pool, f, "wskp", e, &[t], d, x, &mut [&mut *c])?;
-    features::clamp_fireflies(c, t, a, w, h);
+    features::clamp_fireflies(pool, c, t, a, w, h);
     features::split_excess(pool, c, a, w, h, e, ex);
     Ok(e)
 }
