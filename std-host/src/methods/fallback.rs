@@ -263,12 +263,23 @@ mod tests {
         assert!(o.iter().all(|&v| (v - mean).abs() < 1e-6), "noise removed is not put back");
     }
 
+    /// The fade: on up to FADE_FROM, off from FADE_TO, linear between.
+    #[test]
+    fn fade_runs_from_on_to_off() {
+        assert_eq!(fade(0.0), 0.0);
+        assert_eq!(fade(FADE_FROM), 0.0);
+        assert!((fade(0.5 * (FADE_FROM + FADE_TO)) - 0.5).abs() < 1e-6);
+        assert_eq!(fade(FADE_TO), 1.0);
+        assert_eq!(fade(1.0), 1.0);
+    }
+
     /// The weight against the formula in f64.
     #[test]
     fn blend_weight_is_the_formula() {
         for &(v, e) in &[(1.0f32, 0.5f32), (1.0, 2.0), (1.0, 3.0), (0.1, 10.0), (0.0, 1.0), (0.0, 0.0), (2.0, 100.0)] {
-            // NOISY = 0.05: the margin from 1 at no noise to 2 there.
-            for &(vbar, m) in &[(0.0f32, 1.0f64), (0.005, 1.1), (0.025, 1.5), (0.05, 2.0), (0.5, 2.0)] {
+            // The margin from 1 at no noise to 2 from NOISY on.
+            for &(f, m) in &[(0.0f32, 1.0f64), (0.1, 1.1), (0.5, 1.5), (1.0, 2.0), (10.0, 2.0)] {
+                let vbar = f * NOISY;
                 let (v64, e64) = (v as f64, e as f64);
                 let b = (e64 - m * v64).max(0.0);
                 let k = if v64 + b > 0.0 { v64 / (v64 + b) } else { 1.0 };
