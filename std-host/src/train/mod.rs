@@ -273,7 +273,11 @@ fn draw(rng: &mut Rng, samples: &[Sample], s: usize) -> CropAt {
     CropAt { frame, x0: rng.below(w - s + 1), y0: rng.below(h - s + 1), t: rng.below(8) as u8 }
 }
 
-/// Mean display PSNR of the method on sequences (each denoised whole, in order).
+/// Mean display PSNR of the method on sequences (each denoised whole, in
+/// order), over the frames where it is finite: a frame whose display
+/// values are saturated in the reference and the output alike (a very
+/// bright scene clamps to white) scores `inf` and says nothing, and one
+/// such frame made the mean `inf` (the generator's `val_0003`).
 pub fn validate(
     seqs: &[Sequence],
     make: &dyn Fn(&Frame) -> Result<Box<dyn Denoiser>>,
@@ -288,20 +292,27 @@ pub fn validate(
         let mut t = Timings::default();
         for (f, r) in s.frames.iter().zip(&s.refs) {
             let out = den.denoise(f, &mut ctx, &mut t)?;
-            sum += metrics::score(&out, r, f.width, f.height).psnr;
-            n += 1;
+            let p = metrics::score(&out, r, f.width, f.height).psnr;
+            if p.is_finite() {
+                sum += p;
+                n += 1;
+            }
         }
     }
     Ok(sum / n.max(1) as f64)
 }
 
-/// The mean display PSNR of the sequences' inputs.
+/// The mean display PSNR of the sequences' inputs (over the frames where
+/// it is finite, as [`validate`]).
 fn input_psnr(seqs: &[Sequence]) -> f64 {
     let (mut sum, mut n) = (0.0, 0);
     for s in seqs {
         for (f, r) in s.frames.iter().zip(&s.refs) {
-            sum += metrics::score(f.get(Buffer::Color).expect("colour"), r, f.width, f.height).psnr;
-            n += 1;
+            let p = metrics::score(f.get(Buffer::Color).expect("colour"), r, f.width, f.height).psnr;
+            if p.is_finite() {
+                sum += p;
+                n += 1;
+            }
         }
     }
     sum / n.max(1) as f64
@@ -775,5 +786,29 @@ mod tests {
             assert!((v0 / v1 - 16.0).abs() < 1e-3, "variance ratio {}", v0 / v1);
         }
         assert_eq!(f.get(Buffer::Albedo).unwrap(), &albedo[..]);
+    }
+
+    /// A frame saturated on display in its reference and its input alike
+    /// scores `inf` and is left out of the mean; the other frame's PSNR is
+    /// the mean.
+    #[test]
+    fn input_psnr_leaves_out_frames_that_say_nothing() {
+        let (w, h) = (8, 6);
+        let m = 3 * w * h;
+        let bright = vec![50.0f32; m];
+        let r = vec![0.25f32; m];
+        let noisy: Vec<f32> = (0..m).map(|i| if i % 2 == 0 { 0.5 } else { 0.0 }).collect();
+        let seq = Sequence {
+            dir: PathBuf::from("s"),
+            frames: vec![
+                Frame::from_color("a.exr", w, h, bright.iter().map(|v| v * 2.0).collect()).unwrap(),
+                Frame::from_color("b.exr", w, h, noisy.clone()).unwrap(),
+            ],
+            refs: vec![bright, r.clone()],
+        };
+        let want = metrics::score(&noisy, &r, w, h).psnr;
+        assert!(want.is_finite());
+        let got = input_psnr(std::slice::from_ref(&seq));
+        assert!((got - want).abs() < 1e-9, "{got} vs {want}");
     }
 }
