@@ -241,9 +241,12 @@ fn window_sizes_round_trip_through_the_weights_file() {
     assert_eq!((one.count(), one.outputs(), one.array()[0]), (1, 1, 7));
     assert_eq!(Sizes::ALL.outputs(), 12);
     // Size 1, the identity: one logit more, not a window.
-    assert_eq!(Sizes::parse("13,1,3,5,7,9,11").unwrap(), Sizes::DEFAULT);
-    assert_eq!(Sizes::DEFAULT.name(), "1,3,5,7,9,11,13");
-    assert_eq!((Sizes::DEFAULT.count(), Sizes::DEFAULT.outputs(), Sizes::DEFAULT.keep()), (6, 13, true));
+    assert_eq!(Sizes::parse("13,1,3,5,7,9,11").unwrap(), Sizes::ALL_AND_INPUT);
+    assert_eq!(Sizes::ALL_AND_INPUT.name(), "1,3,5,7,9,11,13");
+    assert_eq!(
+        (Sizes::ALL_AND_INPUT.count(), Sizes::ALL_AND_INPUT.outputs(), Sizes::ALL_AND_INPUT.keep()),
+        (6, 13, true)
+    );
     assert!(!Sizes::ALL.keep());
     let k1 = Sizes::parse("1,7").unwrap();
     assert_eq!((k1.count(), k1.outputs(), k1.array()[0], k1.name()), (1, 2, 7, "1,7".to_string()));

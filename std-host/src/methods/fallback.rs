@@ -120,13 +120,14 @@ pub fn to_input(
         let (pool, scratch) = (&ctx.pool, &mut ctx.scratch);
         pool.bands(ViewMut::new(&mut raw, 1, w, h)?, 16, scratch, 0, |b, y0, _| noise::local_noise_rows(&src, b, y0))?;
     }
+    let fin = |v: f32| if v.is_finite() { v.min(1e12) } else { 1e12 };
+    for v in raw.iter_mut() {
+        *v = fin(*v);
+    }
     // The frame's noise level: the median over the pixels of the 7x7
     // window mean of the estimate (per channel). A 1-spp frame ends here.
     let level = {
         let mut m = raw.clone();
-        for v in m.iter_mut() {
-            *v = if v.is_finite() { v.min(1e12) } else { 1e12 };
-        }
         crate::methods::features::box_sum(&mut m, w, h, RADIUS);
         let span = |p: usize, len: usize| ((p + RADIUS).min(len - 1) - p.saturating_sub(RADIUS) + 1) as f32;
         for (i, v) in m.iter_mut().enumerate() {
@@ -138,18 +139,15 @@ pub fn to_input(
     if s >= 1.0 {
         return Ok(());
     }
-    // The channels' sums (the estimates are their means), and the squared
-    // difference in the same colour.
+    // The squared difference in the same colour, summed over the channels.
     let mut err = vec![0.0f32; n];
-    for i in 0..n {
+    for (i, e) in err.iter_mut().enumerate() {
         let mut d2 = 0.0f32;
         for c in 0..3 {
             let d = log(o[c * n + i]) - ly[c * n + i];
             d2 += d * d;
         }
-        let fin = |v: f32| if v.is_finite() { v.min(1e12) } else { 1e12 };
-        raw[i] = fin(3.0 * raw[i]);
-        err[i] = fin(d2);
+        *e = fin(d2);
     }
     // Window sums over the pixels of the same albedo as the centre (within
     // ALBEDO_TOL of the larger, per channel): a light's partially covered
@@ -176,7 +174,8 @@ pub fn to_input(
                     }
                 }
             }
-            *k = blend_weight(vs, es, vs / (3.0 * cnt.max(1.0)));
+            // (The estimate is the channels' mean: their sum is 3 times it.)
+            *k = blend_weight(3.0 * vs, es, vs / cnt.max(1.0));
         }
     });
     for k in ks.iter_mut() {
@@ -225,7 +224,17 @@ pub fn margin(vbar: f32) -> f32 {
 /// vanish.
 #[inline]
 pub fn blend_weight(v: f32, e: f32, vbar: f32) -> f32 {
-    let bias2 = (e - margin(vbar) * v).max(0.0);
+    shrink(v, e, margin(vbar))
+}
+
+/// The output's weight in a blend with an input of noise variance `v`,
+/// the output's squared difference from it being `e`:
+/// `v / (v + max(e - margin v, 0))` (the output's excess over the noise
+/// taken as its squared error), 1 where both vanish. `cross` falls back to
+/// its pair's mean by the same weight.
+#[inline]
+pub fn shrink(v: f32, e: f32, margin: f32) -> f32 {
+    let bias2 = (e - margin * v).max(0.0);
     if v + bias2 > 0.0 {
         v / (v + bias2)
     } else {

@@ -465,8 +465,7 @@ fn blend_by_error(o: &mut [f32], a: &[f32], b: &[f32], logs: Logs, w: usize, h: 
     crate::methods::features::box_sum(var, w, h, BLEND_RADIUS);
     crate::methods::features::box_sum(err, w, h, BLEND_RADIUS);
     for i in 0..n {
-        let (v, bias2) = (var[i], (err[i] - BLEND_MARGIN * var[i]).max(0.0));
-        let k = if v + bias2 > 0.0 { v / (v + bias2) } else { 1.0 };
+        let k = crate::methods::fallback::shrink(var[i], err[i], BLEND_MARGIN);
         for c in 0..3 {
             let m = 0.5 * (a[c * n + i] + b[c * n + i]);
             let out = m + k * (o[c * n + i] - m);

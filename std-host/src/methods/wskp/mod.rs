@@ -67,7 +67,7 @@ impl Sizes {
     /// The six sizes of the paper, fused.
     pub const ALL: Sizes = Sizes(0b11_1111);
     /// The six sizes and the identity (size 1).
-    pub const DEFAULT: Sizes = Sizes(0b11_1111 | KEEP);
+    pub const ALL_AND_INPUT: Sizes = Sizes(0b11_1111 | KEEP);
     /// Parses `"1,3,5,7,9,11,13"`, `"3,5,7,9,11,13"` or `"7"` (sizes from 1
     /// and [`SIZES`], each once, at least one of [`SIZES`]).
     pub fn parse(s: &str) -> std::result::Result<Sizes, String> {
@@ -377,7 +377,7 @@ impl<P: HostPrecision> Wskp<P> {
         let bufs = 4 * (3 + 10 + 3 + 3 + 3 + 1);
         let stored = if f32s { 0 } else { 16 * s };
         // Another layer count is refused when the method is built.
-        let network = net_for(if layers == 3 { 3 } else { 6 }, Sizes::DEFAULT).expect("3 or 6 layers");
+        let network = net_for(if layers == 3 { 3 } else { 6 }, Sizes::ALL_AND_INPUT).expect("3 or 6 layers");
         let net = crate::nn::infer::held_bytes_per_pixel(&network, s);
         let output = |l: &mut crate::runtime::memory::Ledger| {
             l.alloc(12);
@@ -417,7 +417,7 @@ impl<P: HostPrecision> Wskp<P> {
         plan.built.push(if layers == 6 { "ImportanceNet (6 layers)" } else { "ImportanceNet (3 layers)" });
         plan.built.push(match sizes {
             Sizes::ALL => "fused importance filter (sizes 3..13)",
-            Sizes::DEFAULT => "fused importance filter (sizes 3..13, and 1: the input kept by a learned weight)",
+            Sizes::ALL_AND_INPUT => "fused importance filter (sizes 3..13, and 1: the input kept by a learned weight)",
             s if s.count() == 1 => "importance filter (one window size, the weights' sizes metadata)",
             _ => "fused importance filter (the weights' sizes metadata)",
         });
