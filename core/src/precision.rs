@@ -162,20 +162,18 @@ where
 impl FloatPrecision for F32 {}
 impl FloatPrecision for F16 {}
 
-/// Exact f16 -> f32 widening in a few integer operations, inlined (the
-/// `half` crate may call out of line per element).
+/// Exact f16 -> f32 widening in a few operations, inlined and without
+/// branches on the value (the `half` crate may call out of line per
+/// element): the magnitude's bits moved into f32's exponent and mantissa
+/// fields read as an f32 `2^-112` times the value (subnormal for f16's
+/// subnormals), so one multiply by `2^112` gives it exactly, zero included;
+/// infinities and NaN (exponent 31) are selected apart.
 #[inline(always)]
 pub fn f16_to_f32(h: u16) -> f32 {
     let sign = ((h as u32) & 0x8000) << 16;
-    let exp = ((h >> 10) & 0x1f) as u32;
-    let man = (h & 0x3ff) as u32;
-    let bits = if exp == 0 {
-        // Zero and subnormals: man * 2^-24, exact in f32.
-        return f32::from_bits(sign | (man as f32 * 5.960_464_5e-8).to_bits());
-    } else if exp == 31 {
-        sign | 0x7f80_0000 | (man << 13)
-    } else {
-        sign | ((exp + 112) << 23) | (man << 13)
-    };
-    f32::from_bits(bits)
+    let mag = (h & 0x7fff) as u32;
+    let scaled = f32::from_bits(mag << 13) * f32::from_bits((127 + 112) << 23);
+    let special = f32::from_bits(0x7f80_0000 | ((mag & 0x3ff) << 13));
+    let v = if mag >= 0x7c00 { special } else { scaled };
+    f32::from_bits(v.to_bits() | sign)
 }

@@ -193,8 +193,51 @@ proptest! {
     }
 }
 
+/// The fixed-point fused filter over several tiles (columns past 256, rows
+/// past a 48-row grid cell), run whole and in bands of rows starting off the
+/// grid: the same bits on every instruction set and every split.
+#[test]
+fn fixed_fused_is_the_same_in_bands_and_tiles() {
+    let (w, h) = (530, 101);
+    let sizes = [3usize, 5, 7, 9, 11, 13];
+    let m = sizes.len();
+    let enc = |img: &Img, frac: i8| {
+        let mut p = Planes::<i16>::new(img.c, img.w, img.h).with_frac(frac);
+        Fixed::encode(&img.data, &mut p.data, frac);
+        p
+    };
+    let is = enc(&Img::random(m, w, h, -30.0, 30.0, 5), 8);
+    let fs = enc(&Img::random(m, w, h, -4.0, 4.0, 6), 11);
+    let als = enc(&Img::random(3, w, h, 0.0, 1.0, 7), 14);
+    let rs = store::<Fixed>(&Img::random(3, w, h, 0.0, 8.0, 8), Kind::Image);
+    let inp = FusedInputs {
+        sizes: &sizes,
+        importance: is.view(),
+        fusion: Some(fs.view()),
+        albedo: Some(als.view()),
+        radiance: rs.view(),
+    };
+    let mut sc = vec![0.0; softmax::fused_scratch_len::<Fixed>(WindowPath::BoxSum, &sizes, 3, w)];
+    let mut whole = out::<Fixed>(3, w, h, rs.frac);
+    softmax::fused_filter::<Fixed>(Isa::Scalar, WindowPath::BoxSum, &inp, &mut whole.view_mut(), 0, &mut sc).unwrap();
+    for isa in isas_under_test() {
+        let mut banded = out::<Fixed>(3, w, h, rs.frac);
+        let mut y0 = 0;
+        for band in [7usize, 41, 1, 30, 22] {
+            let rows = band.min(h - y0);
+            let mut all = banded.view_mut();
+            let mut b = all.rows_mut(y0, rows).unwrap();
+            softmax::fused_filter::<Fixed>(isa, WindowPath::BoxSum, &inp, &mut b, y0, &mut sc).unwrap();
+            y0 += rows;
+        }
+        assert_eq!(y0, h);
+        assert_eq!(banded.data, whole.data, "{isa:?}");
+    }
+}
+
 /// Fixed point: every SIMD path gives the scalar path's bits, at every width,
-/// with outputs pre-filled with different sentinels.
+/// with outputs pre-filled with different sentinels (the fused filter, whose
+/// SIMD paths divide in f64 and correct to the integer quotient, included).
 #[test]
 fn fixed_simd_is_bit_identical_to_scalar() {
     for isa in simd_isas() {
@@ -214,6 +257,38 @@ fn fixed_simd_is_bit_identical_to_scalar() {
                     };
                     assert_eq!(run(Isa::Scalar, 1111), run(isa, -2222), "unfold {isa:?} {w}x{h} k={k}");
                 }
+                if h > 1 || w % 7 == 0 {
+                    let sizes = [3usize, 5, 7, 9, 11, 13];
+                    let m = sizes.len();
+                    // Logits wide enough that some windows fall under the tile's
+                    // shift by more than TINY_Q16 (the direct recomputation).
+                    let li = Img::random(m, w, h, -40.0, 40.0, (w * 31 + h) as u64);
+                    let lf = Img::random(m, w, h, -4.0, 4.0, (w * 17 + h) as u64);
+                    let alb = Img::random(3, w, h, 0.0, 1.0, n as u64 ^ 9);
+                    let enc = |img: &Img, frac: i8| {
+                        let mut p = Planes::<i16>::new(img.c, img.w, img.h).with_frac(frac);
+                        Fixed::encode(&img.data, &mut p.data, frac);
+                        p
+                    };
+                    let (is, fs, als) = (enc(&li, 8), enc(&lf, 11), enc(&alb, 14));
+                    for path in [WindowPath::BoxSum, WindowPath::Separable] {
+                        let run = |i: Isa, fill: i16| {
+                            let inp = FusedInputs {
+                                sizes: &sizes,
+                                importance: is.view(),
+                                fusion: Some(fs.view()),
+                                albedo: Some(als.view()),
+                                radiance: ss.view(),
+                            };
+                            let mut o = out::<Fixed>(3, w, h, ss.frac);
+                            o.data.fill(fill);
+                            let mut sc = vec![0.0; softmax::fused_scratch_len::<Fixed>(path, &sizes, 3, w)];
+                            softmax::fused_filter::<Fixed>(i, path, &inp, &mut o.view_mut(), 0, &mut sc).unwrap();
+                            o.data
+                        };
+                        assert_eq!(run(Isa::Scalar, 1111), run(isa, -2222), "fused {isa:?} {path:?} {w}x{h}");
+                    }
+                }
                 for (k, cin, cout) in [(3, 14, 14), (5, 3, 7), (1, 5, 2)] {
                     let x = Img::random(cin, w, h, -1.0, 1.0, n as u64);
                     let xs = store::<Fixed>(&x, Kind::Image);
@@ -221,16 +296,28 @@ fn fixed_simd_is_bit_identical_to_scalar() {
                     let mut ws = vec![0i16; wts.data.len()];
                     Fixed::encode(&wts.data, &mut ws, 10);
                     let bias: Vec<i16> = (0..cout as i16).map(|i| i * 37 - 100).collect();
-                    for act in [Activation::Identity, Activation::Relu, Activation::LeakyRelu(0.1)] {
+                    // Output formats for an accumulator shift of about 11 and of
+                    // about 20 (past 15, where adding the rounding half first could overflow).
+                    for (act, of) in [
+                        (Activation::Identity, 11),
+                        (Activation::Relu, 11),
+                        (Activation::LeakyRelu(0.1), 11),
+                        (Activation::Identity, 2),
+                        (Activation::LeakyRelu(0.1), 2),
+                    ] {
                         let layer = Conv2d { k, cin, cout, weights: &ws, bias: Some(&bias), act, weight_frac: 10 };
                         let run = |i: Isa, fill: i16| {
-                            let mut o = out::<Fixed>(cout, w, h, 11);
+                            let mut o = out::<Fixed>(cout, w, h, of);
                             o.data.fill(fill);
                             let mut sc = vec![0.0; conv::conv2d_scratch_len::<Fixed>(k, cin, cout, w)];
                             conv::conv2d::<Fixed>(i, &layer, &xs.view(), &mut o.view_mut(), 0, &mut sc).unwrap();
                             o.data
                         };
-                        assert_eq!(run(Isa::Scalar, 1111), run(isa, -2222), "conv {isa:?} {w}x{h} k={k} {act:?}");
+                        assert_eq!(
+                            run(Isa::Scalar, 1111),
+                            run(isa, -2222),
+                            "conv {isa:?} {w}x{h} k={k} {act:?} out frac {of}"
+                        );
                     }
                 }
             }

@@ -149,14 +149,14 @@ float_softmax!(F16);
 
 impl SoftmaxPrecision for Fixed {
     fn fused_impl(
-        _chk: Checked,
+        chk: Checked,
         path: WindowPath,
         inp: &FusedInputs<'_, i16>,
         dst: &mut ViewMut<'_, i16>,
         y0: usize,
         scratch: &mut [f32],
     ) {
-        fixed::fused(path, inp, dst, y0, scratch)
+        fixed::fused(chk.isa(), path, inp, dst, y0, scratch)
     }
     fn kernels_impl(_chk: Checked, k: usize, logits: &View<'_, i16>, dst: &mut ViewMut<'_, i16>, y0: usize) {
         fixed::kernels(k, logits, dst, y0)

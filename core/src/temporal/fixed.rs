@@ -1,7 +1,8 @@
 //! Temporal accumulation in fixed point (integer only; see [`super`] for the
 //! method). Bilinear weights in Q1.14, squared distances in `i64` against the
 //! limits converted to the position and normal formats, the blend weight
-//! `max(1/(n+1), alpha_min)` by integer division.
+//! `max(1/(n+1), alpha_min)` by integer division; the reprojected history
+//! and colour divide by the taps' weight sum through one reciprocal.
 
 use super::{TemporalInputs, TemporalParams};
 use crate::fixed::{div_round, ld, rescale, sat16, shr_round};
@@ -9,18 +10,21 @@ use crate::view::{View, ViewMut};
 
 const ONE: i64 = 1 << 14;
 
+#[inline(always)]
 fn at(v: &View<'_, i16>, c: usize, y: usize, x: usize) -> i64 {
     ld(v.at(c, y, x)) as i64
 }
 
+#[inline(always)]
 fn dist2(a: &View<'_, i16>, ya: usize, xa: usize, b: &View<'_, i16>, yb: usize, xb: usize) -> i64 {
     // Both in their own formats: bring b to a's.
-    (0..3)
-        .map(|c| {
-            let d = at(a, c, ya, xa) - rescale(at(b, c, yb, xb), b.frac() as i32, a.frac() as i32);
-            d * d
-        })
-        .sum()
+    let (fb, fa) = (b.frac() as i32, a.frac() as i32);
+    let mut s = 0;
+    for c in 0..3 {
+        let d = at(a, c, ya, xa) - rescale(at(b, c, yb, xb), fb, fa);
+        s += d * d;
+    }
+    s
 }
 
 /// A limit in a format, squared (in that format's squared units).
@@ -29,27 +33,54 @@ fn limit2(l: f32, frac: i8) -> i64 {
     q.saturating_mul(q)
 }
 
-/// The squared limits of the geometry tests, each in its buffer's format:
-/// position, normal, albedo.
-type Limits = (i64, i64, i64);
+/// One geometry test's current values at a pixel (read once for its taps),
+/// the previous frame's buffer, the shift that brings it to the current
+/// format, and the squared limit.
+#[derive(Clone, Copy)]
+struct Test<'a> {
+    cur: [i64; 3],
+    prev: Option<(&'a View<'a, i16>, i32, i32, i64)>,
+}
 
-fn agrees(inp: &TemporalInputs<'_, i16>, (lp, ln, la): Limits, y: usize, x: usize, py: usize, px: usize) -> bool {
-    if let (Some(a), Some(b)) = (&inp.position, &inp.prev_position) {
-        if dist2(a, y, x, b, py, px) >= lp {
-            return false;
+impl<'a> Test<'a> {
+    #[inline(always)]
+    fn new(a: &'a Option<View<'a, i16>>, b: &'a Option<View<'a, i16>>, limit: i64, y: usize, x: usize) -> Self {
+        match (a, b) {
+            (Some(a), Some(b)) => Test {
+                cur: [at(a, 0, y, x), at(a, 1, y, x), at(a, 2, y, x)],
+                prev: Some((b, b.frac() as i32, a.frac() as i32, limit)),
+            },
+            _ => Test { cur: [0; 3], prev: None },
         }
     }
-    if let (Some(a), Some(b)) = (&inp.normal, &inp.prev_normal) {
-        if dist2(a, y, x, b, py, px) >= ln {
-            return false;
+
+    /// Whether previous pixel `(py, px)` passes (a test without buffers passes).
+    #[inline(always)]
+    fn passes(&self, py: usize, px: usize) -> bool {
+        let Some((b, fb, fa, limit)) = self.prev else { return true };
+        let mut s = 0;
+        for c in 0..3 {
+            let q = at(b, c, py, px);
+            let d = self.cur[c] - if fb == fa { q } else { rescale(q, fb, fa) };
+            s += d * d;
         }
+        s < limit
     }
-    if let (Some(a), Some(b)) = (&inp.albedo, &inp.prev_albedo) {
-        if dist2(a, y, x, b, py, px) >= la {
-            return false;
-        }
+}
+
+/// `num / den` rounded to nearest, half away from zero, by a reciprocal
+/// `inv = floor(2^47 / den)` shared by the values of a pixel: `|num| <=
+/// 32767 den` keeps the product below 2^62, and with `den <= 2^15` the
+/// reciprocal's error moves the quotient by under 2^-17 (a tie exactly at a
+/// half may round the other way).
+#[inline(always)]
+fn mul_recip(num: i64, inv: i64) -> i64 {
+    let q = (num.abs() * inv + (1i64 << 46)) >> 47;
+    if num < 0 {
+        -q
+    } else {
+        q
     }
-    true
 }
 
 pub(crate) fn accumulate(
@@ -63,7 +94,6 @@ pub(crate) fn accumulate(
     let lp = inp.position.as_ref().map_or(0, |v| limit2(p.pos_limit, v.frac()));
     let ln = inp.normal.as_ref().map_or(0, |v| limit2(p.normal_limit, v.frac()));
     let la = inp.albedo.as_ref().map_or(0, |v| limit2(p.albedo_limit, v.frac()));
-    let lim = (lp, ln, la);
     let (fc, fpc, fh) = (inp.color.frac() as i32, inp.prev_color.frac() as i32, inp.prev_history.frac() as i32);
     let (fo, fho) = (color.frac() as i32, history.frac() as i32);
     let amin = (p.alpha_min.clamp(0.0, 1.0) * ONE as f32) as i64;
@@ -79,6 +109,12 @@ pub(crate) fn accumulate(
                 taps[nt] = (py, px, wt);
                 nt += 1;
             };
+            let tests = [
+                Test::new(&inp.position, &inp.prev_position, lp, y, x),
+                Test::new(&inp.normal, &inp.prev_normal, ln, y, x),
+                Test::new(&inp.albedo, &inp.prev_albedo, la, y, x),
+            ];
+            let agrees = |py: usize, px: usize| tests.iter().all(|t| t.passes(py, px));
             if let Some(m) = &inp.motion {
                 let fm = m.frac().clamp(0, 14) as i32;
                 let scale = 1i64 << fm;
@@ -95,7 +131,7 @@ pub(crate) fn accumulate(
                                 continue;
                             }
                             let (py, px) = (py as usize, px as usize);
-                            if agrees(inp, lim, y, x, py, px) {
+                            if agrees(py, px) {
                                 take(py, px, wt);
                             }
                         }
@@ -113,7 +149,7 @@ pub(crate) fn accumulate(
                     }
                 }
                 if let Some((_, py, px)) = best {
-                    if agrees(inp, lim, y, x, py, px) {
+                    if agrees(py, px) {
                         take(py, px, ONE);
                     }
                 }
@@ -125,12 +161,17 @@ pub(crate) fn accumulate(
                 hist += wt * at(&inp.prev_history, 0, py, px);
             }
             if wsum > 0 {
-                let n = div_round(hist, wsum).max(0); // Q.fh
+                // wsum <= 2^14 + 4 (bilinear weights of one pixel).
+                let inv = (1i64 << 47) / wsum;
+                let n = mul_recip(hist, inv).max(0); // Q.fh
                 let alpha = div_round(ONE << fh, n + (1i64 << fh)).max(amin).min(ONE); // Q.14
                 for c in 0..ch {
                     let cur = at(&inp.color, c, y, x);
-                    let prev: i64 = taps.iter().map(|&(py, px, wt)| wt * at(&inp.prev_color, c, py, px)).sum();
-                    let pv = rescale(div_round(prev, wsum), fpc, fc);
+                    let mut prev = 0i64;
+                    for &(py, px, wt) in taps {
+                        prev += wt * at(&inp.prev_color, c, py, px);
+                    }
+                    let pv = rescale(mul_recip(prev, inv), fpc, fc);
                     let v = shr_round(alpha * cur + (ONE - alpha) * pv, 14);
                     color.row_mut(c, yo)[x] = sat16(rescale(v, fc, fo));
                 }

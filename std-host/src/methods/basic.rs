@@ -27,9 +27,9 @@ impl<P: HostPrecision> Passthrough<P> {
     /// Memory per frame (see [`crate::runtime::memory`]): the colour in storage, then
     /// the f32 output decoded from it.
     pub fn footprint(_info: &FrameInfo) -> Footprint {
-        let (s, x) = (store_bytes::<P>(), P::FORMAT_COPY_BYTES);
+        let s = store_bytes::<P>();
         let mut l = Ledger::default();
-        l.temp(3 * x).alloc(3 * s).alloc(12).free(3 * s);
+        l.alloc(3 * s).alloc(12).free(3 * s);
         Footprint { kept: 0, peak: l.peak(), scratch: 0 }
     }
 }
@@ -154,13 +154,13 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
     /// What [`TemporalAccumulation::step`] allocates and frees, onto `l`; the
     /// bytes per pixel it keeps (the history, live after the step).
     pub fn step_ledger(info: &FrameInfo, l: &mut Ledger) -> u64 {
-        let (s, x) = (store_bytes::<P>(), P::FORMAT_COPY_BYTES);
+        let s = store_bytes::<P>();
         let has = |b: Buffer| u64::from(info.has(b));
         let (normal, position, motion) = (has(Buffer::Normal), has(Buffer::Position), has(Buffer::Motion));
         let albedo = has(Buffer::Albedo);
         let history = 4 * s + 3 * s * (normal + position + albedo);
         l.alloc(history);
-        l.temp(3 * x).alloc(3 * s); // colour (fixed point: a copy of |v| picks the format)
+        l.alloc(3 * s); // colour
         l.alloc(3 * s * (normal + position + albedo) + 2 * s * motion);
         l.alloc(4 * s); // accumulated colour, history counts
         l.free(history).free(3 * s + 2 * s * motion);

@@ -16,6 +16,7 @@ use mcdenoise_core::{F16Arith, Fixed, Precision, View, ViewMut, F16, F32};
 
 use crate::error::{HostError, Result};
 use crate::runtime::aligned::Aligned;
+use half::slice::HalfFloatSliceExt;
 
 /// The precisions a pipeline can run in, by command-line name.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -79,10 +80,6 @@ pub trait HostPrecision:
     + TemporalPrecision
     + AtrousPrecision
 {
-    /// Bytes per value that [`HostPrecision::choose_frac`] allocates for a
-    /// moment to pick an image's format (fixed point sorts a copy of
-    /// `|v|`), for the memory estimates.
-    const FORMAT_COPY_BYTES: u64 = 0;
     /// Fixed point: values carry a per-tensor format (fractional bits), and
     /// formats must be chosen for the network's tensors and the filters'
     /// inputs. The float precisions ignore formats.
@@ -155,14 +152,22 @@ pub const F16_MAX: f32 = 65504.0;
 
 impl HostPrecision for F16 {
     fn encode(src: &[f32], dst: &mut [half::f16], _frac: i8) {
-        for (d, &s) in dst.iter_mut().zip(src) {
-            *d = half::f16::from_f32(s.clamp(-F16_MAX, F16_MAX));
+        // Clamped a block at a time on the stack, then converted by `half`'s
+        // slice conversion (F16C where the CPU has it, round to nearest even
+        // either way).
+        const BLOCK: usize = 1024;
+        let mut tmp = [0.0f32; BLOCK];
+        for (d, s) in dst.chunks_mut(BLOCK).zip(src.chunks(BLOCK)) {
+            let t = &mut tmp[..d.len().min(s.len())];
+            for (t, &v) in t.iter_mut().zip(s) {
+                *t = v.clamp(-F16_MAX, F16_MAX);
+            }
+            d[..t.len()].convert_from_f32_slice(t);
         }
     }
     fn decode(src: &[half::f16], dst: &mut [f32], _frac: i8) {
-        for (d, &s) in dst.iter_mut().zip(src) {
-            *d = s.to_f32();
-        }
+        let n = src.len().min(dst.len());
+        src[..n].convert_to_f32_slice(&mut dst[..n]);
     }
     fn store_as_f16(d: &[half::f16]) -> Option<&[half::f16]> {
         Some(d)
@@ -187,8 +192,74 @@ pub fn frac_for_max(m: f32) -> i8 {
     if m.is_nan() || m <= 0.0 || !m.is_finite() {
         return 14;
     }
-    let bits = (2.0 * m).log2().ceil() as i32; // integer bits needed
-    (15 - bits).clamp(-8, 14) as i8
+    frac_for_bucket(bucket(m))
+}
+
+/// `ceil(log2 |v|) + 127` from the bits of `|v|`, exactly (no `log2`
+/// rounding): the exponent field, plus one when the mantissa is not zero;
+/// 0 for zero and subnormals, 256 for infinities and NaN. Nondecreasing in `|v|`.
+#[inline(always)]
+fn bucket(v: f32) -> usize {
+    let b = v.to_bits() & 0x7fff_ffff;
+    let e = (b >> 23) as usize;
+    match e {
+        0 => 0,
+        255 => 256,
+        _ => e + usize::from(b & 0x7f_ffff != 0),
+    }
+}
+
+/// [`frac_for_max`] of a value in `bucket` (the integer bits needed for
+/// twice it are `ceil(log2 m) + 1`).
+fn frac_for_bucket(k: usize) -> i8 {
+    match k {
+        0 | 256 => 14,
+        _ => (15 - (k as i32 - 127 + 1)).clamp(-8, 14) as i8,
+    }
+}
+
+/// `frac_for_max(percentile_abs(src, q))` without sorting: a histogram of the
+/// values' power-of-two buckets (the format depends on nothing finer), and
+/// the bucket holding the value of that rank.
+pub fn frac_for_percentile(src: &[f32], q: f64) -> i8 {
+    if src.is_empty() {
+        return frac_for_max(0.0);
+    }
+    let mut hist = [0usize; 257];
+    for &v in src {
+        hist[bucket(v)] += 1;
+    }
+    let rank = ((src.len() - 1) as f64 * q).round() as usize;
+    let mut seen = 0;
+    for (k, &n) in hist.iter().enumerate() {
+        seen += n;
+        if seen > rank {
+            return frac_for_bucket(k);
+        }
+    }
+    14
+}
+
+/// `round(s * scale)` (half away from zero) saturated to the symmetric
+/// i16 range, NaN to 0. Written without `f32::round` (a library call on the
+/// baseline target) so that it vectorises: with `r = trunc(v)`, `v - r` is
+/// exact, and `r` moves one away from zero where that remainder is at least
+/// a half.
+#[inline(always)]
+fn encode_fixed(src: &[f32], dst: &mut [i16], scale: f32) {
+    for (d, &s) in dst.iter_mut().zip(src) {
+        let v = (s * scale).clamp(-32767.0, 32767.0);
+        let r = v.trunc();
+        let up = if (v - r).abs() >= 0.5 { 1.0f32.copysign(v) } else { 0.0 };
+        // NaN: `clamp` keeps it, and `as` turns it into 0.
+        *d = (r + up) as i16;
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn encode_fixed_avx2(src: &[f32], dst: &mut [i16], scale: f32) {
+    encode_fixed(src, dst, scale)
 }
 
 /// The 99.9th percentile of `|v|` (exact, by selection on a copy).
@@ -203,20 +274,22 @@ pub fn percentile_abs(src: &[f32], q: f64) -> f32 {
 
 impl HostPrecision for Fixed {
     const FIXED_POINT: bool = true;
-    const FORMAT_COPY_BYTES: u64 = 4;
     fn choose_frac(src: &[f32], kind: Kind) -> i8 {
         match kind {
             Kind::Unit => mcdenoise_core::fixed::KERNEL_FRAC,
             Kind::Plain => frac_for_max(src.iter().fold(0.0f32, |m, v| m.max(v.abs()))),
-            Kind::Image => frac_for_max(percentile_abs(src, 0.999)),
+            Kind::Image => frac_for_percentile(src, 0.999),
         }
     }
     fn encode(src: &[f32], dst: &mut [i16], frac: i8) {
         let scale = (frac as f32).exp2();
-        for (d, &s) in dst.iter_mut().zip(src) {
-            let v = (s * scale).round();
-            *d = if v.is_nan() { 0 } else { v.clamp(-32767.0, 32767.0) as i16 };
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2 (checked on the line above).
+            unsafe { encode_fixed_avx2(src, dst, scale) };
+            return;
         }
+        encode_fixed(src, dst, scale);
     }
     fn decode(src: &[i16], dst: &mut [f32], frac: i8) {
         let scale = (-(frac as f32)).exp2();
@@ -303,5 +376,117 @@ impl<T: bytemuck::Pod + Default> Planes<T> {
         let mut out = vec![0.0; self.data.len()];
         P::decode(&self.data, &mut out, self.frac);
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Values around every rounding boundary, the saturation limits, signed
+    /// zeros, infinities and NaN, plus a sweep.
+    fn probes() -> Vec<f32> {
+        let mut v = vec![
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.5,
+            -1.5,
+            2.5,
+            0.499_999_97,
+            -0.499_999_97,
+            32766.5,
+            32767.0,
+            32767.4,
+            32768.0,
+            -32767.6,
+            -40000.0,
+            1.0e30,
+            -1.0e30,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+            65504.0,
+            65520.0,
+            -70000.0,
+            6.0e-8,
+            1.0e-8,
+        ];
+        let mut x = 0.123_456_7f32;
+        for i in 0..5000 {
+            x = (x * 1.618_034 + 0.377).fract();
+            v.push((x - 0.5) * 2.0f32.powi(i % 40 - 20));
+        }
+        v
+    }
+
+    #[test]
+    fn the_format_histogram_picks_the_percentile_format() {
+        let mut src = probes();
+        // Exact powers of two and their neighbours, where log2 rounding would err.
+        for k in -30..30 {
+            let p = 2f32.powi(k);
+            src.extend([p, f32::from_bits(p.to_bits() + 1), f32::from_bits(p.to_bits() - 1), -p]);
+        }
+        let fin: Vec<f32> = src.iter().copied().filter(|v| v.is_finite()).collect();
+        for q in [0.0, 0.5, 0.9, 0.999, 1.0] {
+            for data in [&src[..], &fin[..], &fin[..7], &fin[100..101]] {
+                let m = percentile_abs(data, q) as f64;
+                // f64 reference: the integer bits that keep 2m below 2^bits.
+                let want = if m.is_nan() || m <= 0.0 || !m.is_finite() {
+                    14
+                } else {
+                    (15 - (2.0 * m).log2().ceil() as i32).clamp(-8, 14) as i8
+                };
+                assert_eq!(frac_for_percentile(data, q), want, "q {q}, {} values, m {m:e}", data.len());
+            }
+        }
+        assert_eq!(frac_for_percentile(&[], 0.999), 14);
+        for m in [1.0f32, 1.5, 2.0, 3.99, 4.0, 4.01, 16383.0, 16384.0, 16385.0, 1.0e-9, 1.0e9] {
+            let want = (15 - (2.0 * m as f64).log2().ceil() as i32).clamp(-8, 14) as i8;
+            assert_eq!(frac_for_max(m), want, "{m}");
+        }
+    }
+
+    #[test]
+    fn fixed_encode_rounds_half_away_and_saturates() {
+        let src = probes();
+        for frac in [-8i8, 0, 3, 8, 14] {
+            let mut got = vec![0i16; src.len()];
+            Fixed::encode(&src, &mut got, frac);
+            let scale = 2f64.powi(frac as i32);
+            for (i, &s) in src.iter().enumerate() {
+                // f64 reference: round half away from zero, saturate, NaN -> 0.
+                let v = s as f64 * scale;
+                let want = if v.is_nan() { 0 } else { v.round().clamp(-32767.0, 32767.0) as i16 };
+                // The product is rounded to f32 before rounding to an integer, as
+                // the encoder does; a tie in f64 is a tie in f32 here (scale is
+                // a power of two).
+                assert_eq!(got[i], want, "value {s:e} at frac {frac}");
+            }
+        }
+    }
+
+    #[test]
+    fn f16_encode_decode_match_the_scalar_conversions() {
+        let src = probes();
+        let mut got = vec![half::f16::ZERO; src.len()];
+        F16::encode(&src, &mut got, 0);
+        for (i, &s) in src.iter().enumerate() {
+            let want = half::f16::from_f32(s.clamp(-F16_MAX, F16_MAX));
+            assert!(
+                got[i].to_bits() == want.to_bits() || (s.is_nan() && got[i].is_nan()),
+                "value {s:e}: {:?} against {:?}",
+                got[i],
+                want
+            );
+            assert!(got[i].is_finite() || s.is_nan(), "value {s:e} saturates");
+        }
+        let mut back = vec![0.0f32; src.len()];
+        F16::decode(&got, &mut back, 0);
+        for (h, b) in got.iter().zip(&back) {
+            assert!(h.to_f32().to_bits() == b.to_bits() || h.is_nan(), "{h:?}");
+        }
     }
 }

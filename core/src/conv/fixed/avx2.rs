@@ -39,8 +39,9 @@ pub(crate) unsafe fn forward(
     let (k, cin, cout) = (layer.k, layer.cin, layer.cout);
     let p = k / 2;
     let s = shift(layer, src, dst);
-    // acc + 2^(s-1) stays below 2^31 for s <= 15 under the layer's bit budget.
-    if !(s > 0 && s <= 15) || k > 5 {
+    // A right shift of 1 to 31 bits (rounded without overflow, below); a left
+    // shift, or a kernel over 5x5, runs the scalar pixel.
+    if !(s > 0 && s <= 31) || k > 5 {
         for yo in 0..dst.height() {
             let mut co0 = 0;
             while co0 < cout {
@@ -204,7 +205,7 @@ struct Rows<'a> {
 /// the width are stored) of band row `yo`, for kernel size `K`.
 ///
 /// # Safety
-/// AVX2; `0 < s <= 15`; the rows held and packed for this output row; `wp`
+/// AVX2; `0 < s <= 31`; the rows held and packed for this output row; `wp`
 /// points at channel `co0` of the packed weights.
 #[inline]
 #[target_feature(enable = "avx2,fma")]
@@ -266,16 +267,19 @@ unsafe fn block<const OB: usize, const K: usize>(
         }
         pair = pair.wrapping_add(rows.rw);
     }
-    let half = _mm256_set1_epi32(1 << (s - 1));
-    let sh = _mm_cvtsi32_si128(s);
+    // Rounded half up without overflow for any s >= 1: ((acc >> (s - 1)) + 1) >> 1
+    // equals (acc + 2^(s-1)) >> s, and its terms stay in range.
+    let one = _mm256_set1_epi32(1);
+    let sh = _mm_cvtsi32_si128(s - 1);
     let lim = _mm256_set1_epi32(super::PRE_ACT_MAX as i32);
     let nlim = _mm256_set1_epi32(-super::PRE_ACT_MAX as i32);
     let n = (dst.width() - x).min(16);
     for o in 0..OB {
         let co = co0 + o;
         let bias = _mm256_set1_epi32(layer.bias.map_or(0, |bb| ld(bb[co])));
-        let mut l = _mm256_add_epi32(_mm256_sra_epi32(_mm256_add_epi32(a0[o], half), sh), bias);
-        let mut r = _mm256_add_epi32(_mm256_sra_epi32(_mm256_add_epi32(a1[o], half), sh), bias);
+        let round = |a: __m256i| _mm256_srai_epi32::<1>(_mm256_add_epi32(_mm256_sra_epi32(a, sh), one));
+        let mut l = _mm256_add_epi32(round(a0[o]), bias);
+        let mut r = _mm256_add_epi32(round(a1[o]), bias);
         l = _mm256_max_epi32(_mm256_min_epi32(l, lim), nlim);
         r = _mm256_max_epi32(_mm256_min_epi32(r, lim), nlim);
         match layer.act {

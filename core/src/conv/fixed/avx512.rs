@@ -32,8 +32,8 @@ pub(crate) unsafe fn forward(
     let p = k / 2;
     let s = shift(layer, src, dst);
     let nblocks = layer.cout.div_ceil(MAX_OB);
-    // acc + 2^(s-1) stays below 2^31 for s <= 15 under the layer's bit budget.
-    let vec_ok = s > 0 && s <= 15;
+    // A right shift of 1 to 31 bits (rounded without overflow in `block`).
+    let vec_ok = s > 0 && s <= 31;
     let mut taps = [Tap::default(); 16 * 25];
     let mut packed_for = None::<(usize, usize)>;
     for yo in 0..dst.height() {
@@ -124,7 +124,7 @@ unsafe fn block_bw<const OB: usize>(
 ///
 /// # Safety
 /// AVX-512 (and VNNI when `VNNI`); columns `x - p .. x + 32 + p` inside the
-/// image; `0 < s <= 15`; `packed` holds `OB * npairs` pairs.
+/// image; `0 < s <= 31`; `packed` holds `OB * npairs` pairs.
 #[inline(always)]
 unsafe fn block<const OB: usize, const VNNI: bool>(
     layer: &Conv2d<'_, i16>,
@@ -169,16 +169,18 @@ unsafe fn block<const OB: usize, const VNNI: bool>(
             }
         }
         let s = b.s;
-        let half = _mm512_set1_epi32(1 << (s - 1));
-        let sh = _mm_cvtsi32_si128(s);
+        // ((acc >> (s - 1)) + 1) >> 1 = (acc + 2^(s-1)) >> s, without overflow.
+        let one = _mm512_set1_epi32(1);
+        let sh = _mm_cvtsi32_si128(s - 1);
+        let round = |a: __m512i| _mm512_srai_epi32::<1>(_mm512_add_epi32(_mm512_sra_epi32(a, sh), one));
         for o in 0..OB {
             let co = co0 + o;
             let bias = _mm512_set1_epi32(layer.bias.map_or(0, |bb| ld(bb[co])));
             let lim = _mm512_set1_epi32(super::PRE_ACT_MAX as i32);
             let nlim = _mm512_set1_epi32(-super::PRE_ACT_MAX as i32);
             let clampv = |v: __m512i| _mm512_max_epi32(_mm512_min_epi32(v, lim), nlim);
-            let mut l = clampv(_mm512_add_epi32(_mm512_sra_epi32(_mm512_add_epi32(lo[o], half), sh), bias));
-            let mut r = clampv(_mm512_add_epi32(_mm512_sra_epi32(_mm512_add_epi32(hi[o], half), sh), bias));
+            let mut l = clampv(_mm512_add_epi32(round(lo[o]), bias));
+            let mut r = clampv(_mm512_add_epi32(round(hi[o]), bias));
             match layer.act {
                 Activation::Identity => {}
                 Activation::Relu => {

@@ -17,19 +17,27 @@ pub(crate) fn forward(layer: &Conv2d<'_, i16>, src: &View<'_, i16>, dst: &mut Vi
     }
 }
 
-/// The exact sum of one output value (out-of-image taps are 0).
+/// The exact sum of one output value (out-of-image taps are 0): the
+/// in-image kernel rows and columns found once, then a dot product of a
+/// kernel row with an image row segment per input channel and kernel row.
 pub(crate) fn pixel(layer: &Conv2d<'_, i16>, src: &View<'_, i16>, co: usize, y: usize, x: usize) -> i32 {
     let (w, h) = (src.width(), src.height());
     let k = layer.k;
     let p = k / 2;
+    let (ky_lo, ky_hi) = (p.saturating_sub(y), k.min((h + p).saturating_sub(y)));
+    let (kx_lo, kx_hi) = (p.saturating_sub(x), k.min((w + p).saturating_sub(x)));
+    if kx_lo >= kx_hi {
+        return 0;
+    }
+    let n = kx_hi - kx_lo;
     let mut acc = 0i32;
     for ci in 0..layer.cin {
-        for ky in 0..k {
-            let Some(sy) = (y + ky).checked_sub(p).filter(|&v| v < h) else { continue };
-            let row = src.row(ci, sy);
-            for kx in 0..k {
-                let Some(sx) = (x + kx).checked_sub(p).filter(|&v| v < w) else { continue };
-                acc += ld(layer.weights[((co * layer.cin + ci) * k + ky) * k + kx]) * ld(row[sx]);
+        for ky in ky_lo..ky_hi {
+            let row = &src.row(ci, y + ky - p)[x + kx_lo - p..][..n];
+            let base = ((co * layer.cin + ci) * k + ky) * k + kx_lo;
+            let wr = &layer.weights[base..base + n];
+            for (&a, &b) in wr.iter().zip(row) {
+                acc += ld(a) * ld(b);
             }
         }
     }

@@ -7,10 +7,12 @@ use crate::precision::FloatElement;
 use crate::real::Real;
 use crate::view::{View, ViewMut};
 
+#[inline(always)]
 fn get<S: FloatElement, A: Real>(v: &View<'_, S>, c: usize, y: usize, x: usize) -> A {
     A::of(v.at(c, y, x).to_f32())
 }
 
+#[inline(always)]
 fn dist2<S: FloatElement, A: Real>(a: &View<'_, S>, ya: usize, xa: usize, b: &View<'_, S>, yb: usize, xb: usize) -> A {
     let mut d = A::ZERO;
     for c in 0..3 {
@@ -20,32 +22,38 @@ fn dist2<S: FloatElement, A: Real>(a: &View<'_, S>, ya: usize, xa: usize, b: &Vi
     d
 }
 
-/// Whether previous pixel `(py, px)` may stand for current pixel `(y, x)`.
-fn agrees<S: FloatElement, A: Real>(
-    inp: &TemporalInputs<'_, S>,
-    p: &TemporalParams,
-    y: usize,
-    x: usize,
-    py: usize,
-    px: usize,
-) -> bool {
-    if let (Some(a), Some(b)) = (&inp.position, &inp.prev_position) {
-        // `!(d < limit)` rejects NaN distances too.
-        if !(dist2::<S, A>(a, y, x, b, py, px) < A::of(p.pos_limit) * A::of(p.pos_limit)) {
-            return false;
+/// One geometry test's current values at a pixel (read once for its taps),
+/// the previous frame's buffer and the squared limit.
+#[derive(Clone, Copy)]
+struct Test<'a, S, A> {
+    cur: [A; 3],
+    prev: Option<(&'a View<'a, S>, A)>,
+}
+
+impl<'a, S: FloatElement, A: Real> Test<'a, S, A> {
+    #[inline(always)]
+    fn new(a: &'a Option<View<'a, S>>, b: &'a Option<View<'a, S>>, limit: f32, y: usize, x: usize) -> Self {
+        match (a, b) {
+            (Some(a), Some(b)) => Test {
+                cur: [get::<S, A>(a, 0, y, x), get::<S, A>(a, 1, y, x), get::<S, A>(a, 2, y, x)],
+                prev: Some((b, A::of(limit) * A::of(limit))),
+            },
+            _ => Test { cur: [A::ZERO; 3], prev: None },
         }
     }
-    if let (Some(a), Some(b)) = (&inp.normal, &inp.prev_normal) {
-        if !(dist2::<S, A>(a, y, x, b, py, px) < A::of(p.normal_limit) * A::of(p.normal_limit)) {
-            return false;
+
+    /// Whether previous pixel `(py, px)` passes (a test without buffers
+    /// passes); `!(d < limit)` rejects NaN distances too.
+    #[inline(always)]
+    fn passes(&self, py: usize, px: usize) -> bool {
+        let Some((b, limit)) = self.prev else { return true };
+        let mut d = A::ZERO;
+        for c in 0..3 {
+            let t = self.cur[c] - get::<S, A>(b, c, py, px);
+            d += t * t;
         }
+        d < limit
     }
-    if let (Some(a), Some(b)) = (&inp.albedo, &inp.prev_albedo) {
-        if !(dist2::<S, A>(a, y, x, b, py, px) < A::of(p.albedo_limit) * A::of(p.albedo_limit)) {
-            return false;
-        }
-    }
-    true
 }
 
 pub(crate) fn accumulate<S: FloatElement, A: Real>(
@@ -69,6 +77,12 @@ pub(crate) fn accumulate<S: FloatElement, A: Real>(
                 taps[nt] = (py, px, wt);
                 nt += 1;
             };
+            let tests = [
+                Test::<S, A>::new(&inp.position, &inp.prev_position, p.pos_limit, y, x),
+                Test::new(&inp.normal, &inp.prev_normal, p.normal_limit, y, x),
+                Test::new(&inp.albedo, &inp.prev_albedo, p.albedo_limit, y, x),
+            ];
+            let agrees = |py: usize, px: usize| tests.iter().all(|t| t.passes(py, px));
             if let Some(m) = &inp.motion {
                 let (mx, my): (f32, f32) = (get::<S, f32>(m, 0, y, x), get::<S, f32>(m, 1, y, x));
                 // Previous position of the pixel centre, in pixel units.
@@ -86,7 +100,7 @@ pub(crate) fn accumulate<S: FloatElement, A: Real>(
                                 continue;
                             }
                             let (py, px) = (py as usize, px as usize);
-                            if agrees::<S, A>(inp, p, y, x, py, px) {
+                            if agrees(py, px) {
                                 take(py, px, wt);
                             }
                         }
@@ -105,7 +119,7 @@ pub(crate) fn accumulate<S: FloatElement, A: Real>(
                     }
                 }
                 if let Some((_, py, px)) = best {
-                    if agrees::<S, A>(inp, p, y, x, py, px) {
+                    if agrees(py, px) {
                         take(py, px, A::ONE);
                     }
                 }

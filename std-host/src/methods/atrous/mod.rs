@@ -176,7 +176,7 @@ impl<P: HostPrecision> Atrous<P> {
     /// scratch of `threads` threads at the frame's width.
     pub fn footprint(info: &FrameInfo, sure: bool, settings: &crate::methods::Settings) -> Footprint {
         let threads = settings.threads;
-        let (s, x) = (store_bytes::<P>(), P::FORMAT_COPY_BYTES);
+        let s = store_bytes::<P>();
         let (f32s, f16s) = (store_is::<P, f32>(), store_is::<P, half::f16>());
         let has = |b: Buffer| u64::from(info.has(b));
         let pair = info.has(Buffer::ColorB);
@@ -197,14 +197,14 @@ impl<P: HostPrecision> Atrous<P> {
         let mut l = Ledger::default();
         l.alloc(kept);
         if !f32s {
-            l.alloc(guides - nsrc * s).temp(nsrc * x).alloc(nsrc * s);
+            l.alloc(guides - nsrc * s).alloc(nsrc * s);
         }
         l.alloc(12); // the output
         if sure && !f32s && !f16s {
             l.temp(4 * (nsrc + levels * nout)); // every level decoded for the shrinkage
         }
         if !f32s {
-            l.temp(3 * x).alloc(3 * s).alloc(12).free(12).free(3 * s);
+            l.alloc(3 * s).alloc(12).free(12).free(3 * s);
         }
         l.free(guides);
         let w = info.width;
