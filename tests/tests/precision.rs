@@ -289,6 +289,35 @@ fn fixed_simd_is_bit_identical_to_scalar() {
                         assert_eq!(run(Isa::Scalar, 1111), run(isa, -2222), "fused {isa:?} {path:?} {w}x{h}");
                     }
                 }
+                // The pools, into formats finer, equal and coarser than the input's.
+                let (wc, hc) = (pool::coarse(w), pool::coarse(h));
+                let cs = store::<Fixed>(&Img::random(3, wc, hc, -3.0, 3.0, n as u64 ^ 3), Kind::Image);
+                let al = store::<Fixed>(&Img::random(3, w, h, 0.0, 1.0, n as u64 ^ 4), Kind::Unit);
+                for of in [ss.frac - 2, ss.frac, ss.frac + 1] {
+                    for op in [Reduce::Mean, Reduce::Max] {
+                        let run = |i: Isa, fill: i16| {
+                            let mut o = out::<Fixed>(3, wc, hc, of);
+                            o.data.fill(fill);
+                            pool::reduce2x2::<Fixed>(i, op, &ss.view(), &mut o.view_mut(), 0).unwrap();
+                            o.data
+                        };
+                        assert_eq!(run(Isa::Scalar, 1111), run(isa, -2222), "reduce {op:?} {isa:?} {w}x{h} to {of}");
+                    }
+                    let run = |i: Isa, fill: i16| {
+                        let mut o = out::<Fixed>(3, w, h, of);
+                        o.data.fill(fill);
+                        pool::upsample_nearest2x::<Fixed>(i, &cs.view(), &mut o.view_mut(), 0, h).unwrap();
+                        o.data
+                    };
+                    assert_eq!(run(Isa::Scalar, 1111), run(isa, -2222), "upsample {isa:?} {w}x{h} to {of}");
+                    let run = |i: Isa, fill: i16| {
+                        let mut o = out::<Fixed>(3, w, h, of);
+                        o.data.fill(fill);
+                        pool::composite::<Fixed>(i, &ss.view(), &cs.view(), &al.view(), &mut o.view_mut(), 0).unwrap();
+                        o.data
+                    };
+                    assert_eq!(run(Isa::Scalar, 1111), run(isa, -2222), "composite {isa:?} {w}x{h} to {of}");
+                }
                 for (k, cin, cout) in [(3, 14, 14), (5, 3, 7), (1, 5, 2)] {
                     let x = Img::random(cin, w, h, -1.0, 1.0, n as u64);
                     let xs = store::<Fixed>(&x, Kind::Image);

@@ -96,21 +96,21 @@ float_pool!(F16, f32);
 float_pool!(F16Arith, crate::real::H);
 
 impl PoolPrecision for Fixed {
-    fn reduce_impl(_chk: Checked, op: Reduce, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>, y0: usize) {
-        fixed::reduce(op, src, dst, y0)
+    fn reduce_impl(chk: Checked, op: Reduce, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>, y0: usize) {
+        fixed::reduce(chk.isa(), op, src, dst, y0)
     }
-    fn upsample_impl(_chk: Checked, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>, y0: usize) {
-        fixed::upsample(src, dst, y0)
+    fn upsample_impl(chk: Checked, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>, y0: usize) {
+        fixed::upsample(chk.isa(), src, dst, y0)
     }
     fn composite_impl(
-        _chk: Checked,
+        chk: Checked,
         fine: &View<'_, i16>,
         coarse: &View<'_, i16>,
         alpha: &View<'_, i16>,
         dst: &mut ViewMut<'_, i16>,
         y0: usize,
     ) {
-        fixed::composite(fine, coarse, alpha, dst, y0)
+        fixed::composite(chk.isa(), fine, coarse, alpha, dst, y0)
     }
 }
 

@@ -607,25 +607,90 @@ pub(crate) fn kernels(k: usize, logits: &View<'_, i16>, dst: &mut ViewMut<'_, i1
     }
 }
 
-/// Channel softmax: weights in the output's format.
-pub(crate) fn channel(src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>) {
+/// Channel softmax: weights in the output's format. A row at a time in
+/// chunks of [`CHUNK`] pixels (one body per instruction set, the loops over
+/// a chunk written to vectorise): the largest stored logit (`logit8` is
+/// monotonic), the sum of the weights, one reciprocal per pixel, then each
+/// channel's weight again and its product with the reciprocal.
+pub(crate) fn channel(isa: crate::isa::Supported, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>) {
+    #[cfg(target_arch = "x86_64")]
+    match isa.isa() {
+        // SAFETY: `isa` is a `Supported` token: this CPU runs the ISA.
+        crate::Isa::Avx512 => return unsafe { channel_avx512(src, dst) },
+        // SAFETY: as above.
+        crate::Isa::Avx2 => return unsafe { channel_avx2(src, dst) },
+        crate::Isa::Scalar => {}
+    }
+    let _ = isa;
+    channel_body::<false>(src, dst)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn channel_avx2(src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>) {
+    channel_body::<true>(src, dst)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl,avx2,fma")]
+unsafe fn channel_avx512(src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>) {
+    channel_body::<true>(src, dst)
+}
+
+/// Pixels per chunk of the channel softmax.
+const CHUNK: usize = 64;
+
+#[inline(always)]
+fn channel_body<const FLOAT_DIV: bool>(src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>) {
     let n = src.channels();
-    let fo = dst.frac() as i32;
+    let (w, fi, fo) = (src.width(), src.frac(), dst.frac() as i32);
+    // The sum of the weights is below n 2^16; the float reciprocal wants it below 2^31.
+    let float_div = FLOAT_DIV && n < 1 << 14;
+    let sh = 46 - fo;
+    let mut top = [0i16; CHUNK];
+    let mut mx = [0i64; CHUNK];
+    let mut l = [0i64; CHUNK];
+    let mut den = [0i64; CHUNK];
     for y in 0..src.height() {
-        for x in 0..src.width() {
-            let mut m = i32::MIN;
-            for c in 0..n {
-                m = m.max(logit8(src.at(c, y, x), src.frac()));
+        let mut x0 = 0;
+        while x0 < w {
+            let cw = CHUNK.min(w - x0);
+            top[..cw].copy_from_slice(&src.row(0, y)[x0..x0 + cw]);
+            for c in 1..n {
+                for (t, &v) in top[..cw].iter_mut().zip(&src.row(c, y)[x0..x0 + cw]) {
+                    *t = (*t).max(v);
+                }
             }
-            let mut den = 0i64;
+            logits_row(&top[..cw], fi, &mut mx[..cw]);
+            den[..cw].fill(0);
             for c in 0..n {
-                den += exp_q8_lane(logit8(src.at(c, y, x), src.frac()) - m) as i64;
+                logits_row(&src.row(c, y)[x0..x0 + cw], fi, &mut l[..cw]);
+                for ((d, &v), &m) in den[..cw].iter_mut().zip(&l[..cw]).zip(&mx[..cw]) {
+                    *d += exp_q8_lane((v - m) as i32) as i64;
+                }
             }
-            let inv = (1i64 << 46) / den;
+            // den >= 2^16: the maximum's weight is 1. `l` takes the reciprocals.
+            let mut inv = [0i64; CHUNK];
+            for (iv, &d) in inv[..cw].iter_mut().zip(&den[..cw]) {
+                *iv = if float_div { recip_exact::<true>(46, d) } else { (1i64 << 46) / d };
+            }
             for c in 0..n {
-                let e = exp_q8_lane(logit8(src.at(c, y, x), src.frac()) - m) as i64;
-                dst.row_mut(c, y)[x] = normalised(e, den, inv, fo);
+                logits_row(&src.row(c, y)[x0..x0 + cw], fi, &mut l[..cw]);
+                let out = &mut dst.row_mut(c, y)[x0..x0 + cw];
+                if (1..63).contains(&sh) {
+                    let half = 1i64 << (sh - 1);
+                    for (((o, &v), &m), &iv) in out.iter_mut().zip(&l[..cw]).zip(&mx[..cw]).zip(&inv[..cw]) {
+                        let e = exp_q8_lane((v - m) as i32) as i64;
+                        *o = ((e * iv + half) >> sh).clamp(-(QMAX as i64), QMAX as i64) as i16;
+                    }
+                } else {
+                    for (i, o) in out.iter_mut().enumerate() {
+                        let e = exp_q8_lane((l[i] - mx[i]) as i32) as i64;
+                        *o = normalised(e, den[i], inv[i], fo);
+                    }
+                }
             }
+            x0 += cw;
         }
     }
 }

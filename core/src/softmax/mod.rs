@@ -161,8 +161,8 @@ impl SoftmaxPrecision for Fixed {
     fn kernels_impl(_chk: Checked, k: usize, logits: &View<'_, i16>, dst: &mut ViewMut<'_, i16>, y0: usize) {
         fixed::kernels(k, logits, dst, y0)
     }
-    fn channel_impl(_chk: Checked, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>) {
-        fixed::channel(src, dst)
+    fn channel_impl(chk: Checked, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>) {
+        fixed::channel(chk.isa(), src, dst)
     }
 }
 

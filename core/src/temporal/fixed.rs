@@ -114,7 +114,8 @@ pub(crate) fn accumulate(
                 Test::new(&inp.normal, &inp.prev_normal, ln, y, x),
                 Test::new(&inp.albedo, &inp.prev_albedo, la, y, x),
             ];
-            let agrees = |py: usize, px: usize| tests.iter().all(|t| t.passes(py, px));
+            let agrees =
+                |py: usize, px: usize| tests[0].passes(py, px) && tests[1].passes(py, px) && tests[2].passes(py, px);
             if let Some(m) = &inp.motion {
                 let fm = m.frac().clamp(0, 14) as i32;
                 let scale = 1i64 << fm;

@@ -82,7 +82,8 @@ pub(crate) fn accumulate<S: FloatElement, A: Real>(
                 Test::new(&inp.normal, &inp.prev_normal, p.normal_limit, y, x),
                 Test::new(&inp.albedo, &inp.prev_albedo, p.albedo_limit, y, x),
             ];
-            let agrees = |py: usize, px: usize| tests.iter().all(|t| t.passes(py, px));
+            let agrees =
+                |py: usize, px: usize| tests[0].passes(py, px) && tests[1].passes(py, px) && tests[2].passes(py, px);
             if let Some(m) = &inp.motion {
                 let (mx, my): (f32, f32) = (get::<S, f32>(m, 0, y, x), get::<S, f32>(m, 1, y, x));
                 // Previous position of the pixel centre, in pixel units.
