@@ -170,14 +170,20 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
     /// Accumulates one frame; returns the accumulated colour and the history counts.
     pub fn step(&mut self, f: &Frame, ctx: &mut Ctx, t: &mut Timings) -> Result<StepOut<'_, P>> {
         let (w, h) = (f.width, f.height);
-        let enc =
-            |b: Buffer, kind: Kind| f.get(b).map(|d| Planes::<P::Store>::encode_as::<P>(b.channels(), w, h, d, kind));
-        let color =
-            t.time("encode", || enc(Buffer::Color, Kind::Image)).ok_or_else(|| HostError::bad(&f.path, "no colour"))?;
-        let normal = if self.use_normal { enc(Buffer::Normal, Kind::Unit) } else { None };
-        let albedo = if self.use_albedo { enc(Buffer::Albedo, Kind::Unit) } else { None };
-        let position = if self.use_position { enc(Buffer::Position, Kind::Plain) } else { None };
-        let motion = if self.use_motion { enc(Buffer::Motion, Kind::Plain) } else { None };
+        let pool = &ctx.pool;
+        let enc = |b: Buffer, kind: Kind| {
+            f.get(b).map(|d| Planes::<P::Store>::encode_as_par::<P>(pool, b.channels(), w, h, d, kind))
+        };
+        let (color, normal, albedo, position, motion) = t.time("encode", || {
+            (
+                enc(Buffer::Color, Kind::Image),
+                if self.use_normal { enc(Buffer::Normal, Kind::Unit) } else { None },
+                if self.use_albedo { enc(Buffer::Albedo, Kind::Unit) } else { None },
+                if self.use_position { enc(Buffer::Position, Kind::Plain) } else { None },
+                if self.use_motion { enc(Buffer::Motion, Kind::Plain) } else { None },
+            )
+        });
+        let color = color.ok_or_else(|| HostError::bad(&f.path, "no colour"))?;
         if (self.use_motion && motion.is_none()) || (self.use_position && position.is_none()) {
             return Err(HostError::bad(&f.path, "lacks a buffer the first frame of the sequence had"));
         }

@@ -14,7 +14,7 @@ use mcdenoise_core::View;
 
 use super::{Net, Node};
 use crate::error::{HostError, Result};
-use crate::runtime::precision::{frac_for_max, HostPrecision, Planes};
+use crate::runtime::precision::{frac_for_max, max_abs, HostPrecision, Planes};
 use crate::runtime::Ctx;
 
 /// One conv layer's weights in the precision.
@@ -331,11 +331,15 @@ impl<P: HostPrecision> Inference<P> {
     /// Each tensor's largest magnitude on `input` (f32 runs only), for the
     /// fixed-point formats.
     pub fn ranges(&mut self, ctx: &mut Ctx, input: Planes<P::Store>) -> Result<Vec<f32>> {
-        let input_max = {
-            let mut v = vec![0.0f32; input.data.len()];
-            P::decode(&input.data, &mut v, input.frac);
-            v.iter().fold(0.0f32, |m, x| m.max(x.abs()))
+        let largest = |p: &Planes<P::Store>| match P::store_as_f32(&p.data) {
+            Some(v) => max_abs(v),
+            None => {
+                let mut v = vec![0.0f32; p.data.len()];
+                P::decode(&p.data, &mut v, p.frac);
+                max_abs(&v)
+            }
         };
+        let input_max = largest(&input);
         let nt = self.net.tensors.len();
         let saved = std::mem::replace(&mut self.last_use, vec![usize::MAX; nt]);
         let r = self.run(ctx, input).map(|_| ());
@@ -349,11 +353,7 @@ impl<P: HostPrecision> Inference<P> {
                 if t == 0 {
                     return input_max;
                 }
-                b.as_ref().map_or(0.0, |p| {
-                    let mut v = vec![0.0f32; p.data.len()];
-                    P::decode(&p.data, &mut v, p.frac);
-                    v.iter().fold(0.0f32, |m, x| m.max(x.abs()))
-                })
+                b.as_ref().map_or(0.0, largest)
             })
             .collect())
     }

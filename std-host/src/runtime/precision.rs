@@ -16,7 +16,9 @@ use mcdenoise_core::{F16Arith, Fixed, Precision, View, ViewMut, F16, F32};
 
 use crate::error::{HostError, Result};
 use crate::runtime::aligned::Aligned;
+use crate::runtime::par::Pool;
 use half::slice::HalfFloatSliceExt;
+use rayon::prelude::*;
 
 /// The precisions a pipeline can run in, by command-line name.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -277,7 +279,7 @@ impl HostPrecision for Fixed {
     fn choose_frac(src: &[f32], kind: Kind) -> i8 {
         match kind {
             Kind::Unit => mcdenoise_core::fixed::KERNEL_FRAC,
-            Kind::Plain => frac_for_max(src.iter().fold(0.0f32, |m, v| m.max(v.abs()))),
+            Kind::Plain => frac_for_max(max_abs(src)),
             Kind::Image => frac_for_percentile(src, 0.999),
         }
     }
@@ -297,6 +299,43 @@ impl HostPrecision for Fixed {
             *d = s.max(-32767) as f32 * scale;
         }
     }
+}
+
+/// The largest `|v|` (NaN ignored; 0 for none), in eight lanes that vectorise.
+pub fn max_abs(src: &[f32]) -> f32 {
+    let mut acc = [0.0f32; 8];
+    let mut chunks = src.chunks_exact(8);
+    for c in &mut chunks {
+        for (a, &v) in acc.iter_mut().zip(c) {
+            *a = a.max(v.abs());
+        }
+    }
+    let tail = chunks.remainder().iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    acc.iter().fold(tail, |m, &a| m.max(a))
+}
+
+/// Values per piece of the parallel conversions.
+const PAR_CHUNK: usize = 1 << 16;
+
+/// [`HostPrecision::encode`] in pieces over `pool`'s threads (the same
+/// values: each is converted on its own).
+pub fn encode_par<P: HostPrecision>(pool: &Pool, src: &[f32], dst: &mut [P::Store], frac: i8) {
+    if pool.threads() <= 1 || src.len() < 2 * PAR_CHUNK {
+        return P::encode(src, dst, frac);
+    }
+    pool.install(|| {
+        dst.par_chunks_mut(PAR_CHUNK).zip(src.par_chunks(PAR_CHUNK)).for_each(|(d, s)| P::encode(s, d, frac))
+    });
+}
+
+/// [`HostPrecision::decode`] in pieces over `pool`'s threads.
+pub fn decode_par<P: HostPrecision>(pool: &Pool, src: &[P::Store], dst: &mut [f32], frac: i8) {
+    if pool.threads() <= 1 || src.len() < 2 * PAR_CHUNK {
+        return P::decode(src, dst, frac);
+    }
+    pool.install(|| {
+        dst.par_chunks_mut(PAR_CHUNK).zip(src.par_chunks(PAR_CHUNK)).for_each(|(d, s)| P::decode(s, d, frac))
+    });
 }
 
 /// An owned planar image in a storage type.
@@ -369,6 +408,20 @@ impl<T: bytemuck::Pod + Default> Planes<T> {
         let frac = P::frac_or_zero(frac);
         let mut p = Planes::new(channels, width, height).with_frac(frac);
         P::encode(src, &mut p.data, frac);
+        p
+    }
+    /// [`Planes::encode_as`] with the conversion spread over `pool`'s threads.
+    pub fn encode_as_par<P: HostPrecision<Store = T>>(
+        pool: &Pool,
+        channels: usize,
+        width: usize,
+        height: usize,
+        src: &[f32],
+        kind: Kind,
+    ) -> Self {
+        let frac = P::frac_or_zero(P::choose_frac(src, kind));
+        let mut p = Planes::new(channels, width, height).with_frac(frac);
+        encode_par::<P>(pool, src, &mut p.data, frac);
         p
     }
     /// Decodes to f32.
@@ -446,6 +499,16 @@ mod tests {
         for m in [1.0f32, 1.5, 2.0, 3.99, 4.0, 4.01, 16383.0, 16384.0, 16385.0, 1.0e-9, 1.0e9] {
             let want = (15 - (2.0 * m as f64).log2().ceil() as i32).clamp(-8, 14) as i8;
             assert_eq!(frac_for_max(m), want, "{m}");
+        }
+    }
+
+    #[test]
+    fn max_abs_is_the_fold() {
+        let src = probes();
+        for n in [0, 1, 7, 8, 9, 100, src.len()] {
+            let s = &src[..n];
+            let want = s.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            assert_eq!(max_abs(s).to_bits(), want.to_bits(), "{n} values");
         }
     }
 

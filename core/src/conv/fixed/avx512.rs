@@ -16,6 +16,10 @@ use crate::view::{View, ViewMut};
 
 const MAX_OB: usize = 7;
 
+/// Values of one edge strip: `cin k (32 + k - 1)` is largest for `k = 1`
+/// under the 400-tap bound (`400 x 32`).
+const STRIP: usize = 400 * 32;
+
 /// # Safety
 /// AVX-512 F/BW/DQ/VL and AVX2 must be supported; with `vnni`, AVX512-VNNI too.
 #[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl,avx2,fma")]
@@ -36,6 +40,13 @@ pub(crate) unsafe fn forward(
     let vec_ok = s > 0 && s <= 31;
     let mut taps = [Tap::default(); 16 * 25];
     let mut packed_for = None::<(usize, usize)>;
+    // The edges: the image's first and last 32 + p columns of the k rows of
+    // an output row, zero-padded by p columns outside the image, so that
+    // the border pixels run the same blocks (with taps into the strips).
+    let sw = 32 + 2 * p;
+    let strip_len = layer.cin * k * sw;
+    let mut strips = [[0i16; STRIP]; 2];
+    let mut staps = [Tap::default(); 16 * 25];
     for yo in 0..dst.height() {
         let y = y0 + yo;
         let (nt, ky_lo, ky_hi) = row_taps(layer, y, h, &mut taps);
@@ -44,13 +55,41 @@ pub(crate) unsafe fn forward(
             pack_pairs(layer, nt, ky_lo, ky_hi, packed);
             packed_for = Some((ky_lo, ky_hi));
         }
+        let edges = vec_ok && fits && strip_len <= STRIP && w >= sw;
+        if edges {
+            let top = y as isize - p as isize;
+            for ci in 0..layer.cin {
+                for r in 0..k {
+                    let o = (ci * k + r) * sw;
+                    let sy = top + r as isize;
+                    let [left, right] = &mut strips;
+                    let (left, right) = (&mut left[o..o + sw], &mut right[o..o + sw]);
+                    if sy < 0 || sy as usize >= h {
+                        left.fill(0);
+                        right.fill(0);
+                        continue;
+                    }
+                    let row = src.row(ci, sy as usize);
+                    left[..p].fill(0);
+                    left[p..].copy_from_slice(&row[..32 + p]);
+                    right[..32 + p].copy_from_slice(&row[w - 32 - p..]);
+                    right[32 + p..].fill(0);
+                }
+            }
+            for (st, tp) in staps[..nt].iter_mut().zip(&taps[..nt]) {
+                *st = Tap { ci: tp.ci, sy: (tp.sy as isize - top) as usize, kx: tp.kx };
+            }
+        }
+        let [sl, sr] = &strips;
+        let left = View::new(&sl[..strip_len], layer.cin, sw, k).map(|v| v.with_frac(src.frac()));
+        let right = View::new(&sr[..strip_len], layer.cin, sw, k).map(|v| v.with_frac(src.frac()));
         let npairs = nt.div_ceil(2);
         let mut co0 = 0;
         for b in 0..nblocks {
             let ob = layer.cout / nblocks + usize::from(b < layer.cout % nblocks);
             let mut x = p;
             if vec_ok && fits {
-                let ctx = Block { src, taps: &taps[..nt], packed: &packed[co0 * npairs..], npairs, x: 0, s, p };
+                let ctx = Block { src, taps: &taps[..nt], packed: &packed[co0 * npairs..], npairs, x: 0, xo: 0, s, p };
                 macro_rules! run {
                     ($ob:literal) => {{
                         let go = |bl: &Block<'_, '_>, dst: &mut ViewMut<'_, i16>| {
@@ -63,16 +102,26 @@ pub(crate) unsafe fn forward(
                                 }
                             }
                         };
+                        if let (true, Ok(lv), Ok(rv)) = (edges, &left, &right) {
+                            // Output columns 0 .. 32 and w - 32 .. w from the strips.
+                            let st = &staps[..nt];
+                            go(&Block { src: lv, taps: st, x: p, xo: 0, ..ctx }, dst);
+                            go(&Block { src: rv, taps: st, x: p, xo: w - 32, ..ctx }, dst);
+                            x = 32;
+                        }
                         while x + 32 + p <= w {
                             // Columns x - p .. x + 32 + p are inside the row.
-                            go(&Block { x, ..ctx }, dst);
+                            go(&Block { x, xo: x, ..ctx }, dst);
                             x += 32;
                         }
                         // The tail: one more block ending at the last interior column,
                         // overlapping the previous one (same values written twice).
                         if x < w - p && w >= 32 + 2 * p {
-                            go(&Block { x: w - p - 32, ..ctx }, dst);
+                            go(&Block { x: w - p - 32, xo: w - p - 32, ..ctx }, dst);
                             x = w - p;
+                        }
+                        if edges {
+                            x = w;
                         }
                     }};
                 }
@@ -86,7 +135,9 @@ pub(crate) unsafe fn forward(
                     _ => run!(7),
                 }
             }
-            scalar_columns(layer, src, dst, (co0, ob), (y, yo), x, s);
+            if !(edges && x == w) {
+                scalar_columns(layer, src, dst, (co0, ob), (y, yo), x, s);
+            }
             co0 += ob;
         }
     }
@@ -203,8 +254,8 @@ unsafe fn block<const OB: usize, const VNNI: bool>(
             }
             // packs works per 128-bit lane, undoing the unpack's lane split.
             let out = _mm512_max_epi16(_mm512_packs_epi32(l, r), floor);
-            // SAFETY: x + 32 <= width.
-            _mm512_storeu_si512(dst.ptr_mut(co, yo).add(x) as *mut _, out);
+            // SAFETY: xo + 32 <= the output's width.
+            _mm512_storeu_si512(dst.ptr_mut(co, yo).add(b.xo) as *mut _, out);
         }
     }
 }

@@ -130,7 +130,10 @@ pub(crate) struct Block<'c, 'a> {
     pub(crate) taps: &'c [Tap],
     pub(crate) packed: &'c [i32],
     pub(crate) npairs: usize,
+    /// The block's first column in `src`.
     pub(crate) x: usize,
+    /// The block's first column in the output (`x` but for the edge strips).
+    pub(crate) xo: usize,
     pub(crate) s: i32,
     pub(crate) p: usize,
 }

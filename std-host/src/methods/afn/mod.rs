@@ -640,8 +640,8 @@ impl<P: HostPrecision> Afn<P> {
 }
 
 /// f32 planes in precision `P` with the format of `kind`.
-fn store<P: HostPrecision>(c: usize, w: usize, h: usize, d: &[f32], kind: Kind) -> Planes<P::Store> {
-    Planes::<P::Store>::encode_as::<P>(c, w, h, d, kind)
+fn store<P: HostPrecision>(pool: &Pool, c: usize, w: usize, h: usize, d: &[f32], kind: Kind) -> Planes<P::Store> {
+    Planes::<P::Store>::encode_as_par::<P>(pool, c, w, h, d, kind)
 }
 
 impl<P: HostPrecision> Denoiser for Afn<P> {
@@ -673,6 +673,7 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
             let (hw, hb) = hp.split_at(last.spec.cout * last.cin);
             let (br, rr) = if P::FIXED_POINT {
                 // The formats from an f32 run on the first frame.
+                let t0 = std::time::Instant::now();
                 let mut k32 = Inference::<F32>::new(&body, bp, None, None)?;
                 let br = k32.ranges(ctx, Planes::<f32>::from_vec(CIN, w, h, x.clone()))?;
                 let mut r32 = Inference::<F32>::new(&self.refine_net, &self.params.1, None, None)?;
@@ -681,7 +682,9 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
                 for (d, &tv) in rin[..3 * n].iter_mut().zip(ct.iter()) {
                     *d = (e * tv).max(0.0).ln_1p();
                 }
-                (Some(br), Some(r32.ranges(ctx, Planes::<f32>::from_vec(RIN, w, h, rin))?))
+                let rr = r32.ranges(ctx, Planes::<f32>::from_vec(RIN, w, h, rin))?;
+                t.add("fixed-point formats (first frame)", t0.elapsed());
+                (Some(br), Some(rr))
             } else {
                 (None, None)
             };
@@ -704,7 +707,7 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
         let inf = self.infer.as_mut().expect("just built");
         let xin = t.time("encode", || {
             let mut p = Planes::<P::Store>::new(CIN, w, h).with_frac(inf.body.input_frac());
-            P::encode(x, &mut p.data, p.frac);
+            crate::runtime::precision::encode_par::<P>(&ctx.pool, x, &mut p.data, p.frac);
             p
         });
         t.time("kernel predictor", || inf.body.run(ctx, xin))?;
@@ -713,7 +716,9 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
         let kfrac = P::frac_or_zero(mcdenoise_core::fixed::KERNEL_FRAC);
         let mut k1 = Planes::<P::Store>::new(TAPS, wh, hh).with_frac(kfrac);
         t.time("kernel softmax", || softmax::channel_softmax::<P>(isa, &l1, &mut k1.view_mut()))?;
-        let (c1s, cts) = (store::<P>(3, w, h, c1, Kind::Image), store::<P>(3, w, h, ct, Kind::Image));
+        let (c1s, cts) = t.time("encode", || {
+            (store::<P>(&ctx.pool, 3, w, h, c1, Kind::Image), store::<P>(&ctx.pool, 3, w, h, ct, Kind::Image))
+        });
         let mut d1 = Planes::<P::Store>::new(3, wh, hh).with_frac(c1s.frac);
         let mut f1 = Planes::<P::Store>::new(3, wh, hh).with_frac(c1s.frac);
         let mut fused = Planes::<P::Store>::new(3, w, h).with_frac(cts.frac.min(c1s.frac) - 1);

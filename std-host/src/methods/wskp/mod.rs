@@ -455,7 +455,9 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
         let ta: &[f32] = match P::store_as_f32(&color.data) {
             Some(v) => v,
             None => {
-                t.time("decode", || P::decode(&color.data, &mut bufs.ta, color.frac));
+                t.time("decode", || {
+                    crate::runtime::precision::decode_par::<P>(&ctx.pool, &color.data, &mut bufs.ta, color.frac)
+                });
                 &bufs.ta
             }
         };
@@ -466,8 +468,10 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
         if self.infer.is_none() {
             // Fixed point: the formats from an f32 run on the first frame.
             let ranges = if P::FIXED_POINT {
-                let mut f32net = Inference::<F32>::new(&self.net, &self.params, None, None)?;
-                Some(f32net.ranges(ctx, Planes::<f32>::from_vec(10, w, h, bufs.x.clone()))?)
+                t.time("fixed-point formats (first frame)", || -> Result<_> {
+                    let mut f32net = Inference::<F32>::new(&self.net, &self.params, None, None)?;
+                    Ok(Some(f32net.ranges(ctx, Planes::<f32>::from_vec(10, w, h, bufs.x.clone()))?))
+                })?
             } else {
                 None
             };
@@ -478,7 +482,8 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
         // The filter's inputs and output in the precision (the f32 buffers
         // themselves in f32), kept from frame to frame.
         let xf = infer.input_frac();
-        let (cf, af) = (P::choose_frac(&bufs.c, Kind::Image), P::choose_frac(&bufs.alb, Kind::Plain));
+        let (cf, af) =
+            t.time("encode", || (P::choose_frac(&bufs.c, Kind::Image), P::choose_frac(&bufs.alb, Kind::Plain)));
         let (xs, cs, als) = match (P::borrow_f32(&bufs.x), P::borrow_f32(&bufs.c), P::borrow_f32(&bufs.alb)) {
             (Some(x), Some(c), Some(a)) => (x, c, a),
             _ => {
@@ -488,7 +493,7 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
                         [(&mut st.0, &bufs.x, xf), (&mut st.1, &bufs.c, cf), (&mut st.2, &bufs.alb, af)]
                     {
                         dst.resize(src.len(), P::Store::default());
-                        P::encode(src, dst, frac);
+                        crate::runtime::precision::encode_par::<P>(&ctx.pool, src, dst, frac);
                     }
                 });
                 (&st.0[..], &st.1[..], &st.2[..])
@@ -516,7 +521,7 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
         };
         // The output format: the demodulated input's, rescaled by the albedo's
         // largest value.
-        let amax = bufs.alb.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        let amax = crate::runtime::precision::max_abs(&bufs.alb);
         let frac = cf - (amax.max(1.0).log2().ceil() as i8);
         let mut out = vec![0.0f32; 3 * n];
         let len = softmax::fused_scratch_len::<P>(WindowPath::Separable, &arr[..m], 3, w);
