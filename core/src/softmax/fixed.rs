@@ -109,7 +109,7 @@ fn logits_row(src: &[i16], frac: i8, out: &mut [i64]) {
         for (o, &v) in out.iter_mut().zip(src) {
             *o = ((ld(v) as i64 + half) >> s).clamp(-lim, lim);
         }
-    } else if s <= 0 && s >= -20 {
+    } else if (-20..=0).contains(&s) {
         for (o, &v) in out.iter_mut().zip(src) {
             *o = ((ld(v) as i64) << -s).clamp(-lim, lim);
         }
