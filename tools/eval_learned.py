@@ -51,6 +51,8 @@ def methods(weights):
          ('ta', 'mcd', ['--method', 'ta']),
          ('atrous', 'mcd', ['--method', 'atrous']),
          ('sure-atrous', 'mcd', ['--method', 'sure-atrous'])]
+    # The classical filter's reduced precisions.
+    m += [('atrous ' + p, 'mcd', ['--method', 'atrous', '--precision', p]) for p in ('f16', 'fixed')]
     if os.path.exists(w('wskp6.safetensors')):
         for p in ('f32', 'f16', 'fixed'):
             m.append(('wskp6 ' + p, 'mcd', ['--method', 'wskp', '--layers', '6', '--weights', w('wskp6.safetensors'), '--precision', p]))

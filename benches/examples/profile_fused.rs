@@ -2,7 +2,8 @@
 //! 1280x720 on one thread, the fastest of N repetitions:
 //! `ISA=avx2 profile_fused [REPS] [PATH]` with PATH `boxsum` (default), `separable` or `direct`;
 //! `PREC=fixed` runs the fixed-point filter on the same values (i16 formats
-//! chosen for their ranges).
+//! chosen for their ranges, the logits in Q7.8); `LOGIT_RANGE=R` draws the
+//! importance logits from `[-R, R)` (default 6).
 use mcdenoise_benches::values;
 use mcdenoise_core::softmax::{self, FusedInputs, WindowPath};
 use mcdenoise_core::{fixed, Fixed, Isa, View, ViewMut, F32};
@@ -18,7 +19,8 @@ fn main() {
         .map(|s| s.split(',').map(|v| v.parse().expect("SIZES: odd sizes")).collect())
         .unwrap_or_else(|_| vec![3, 5, 7, 9, 11, 13]);
     assert_eq!(sizes.len(), 6, "SIZES: six sizes");
-    let imp = values(6 * plane, -6.0, 6.0, 1);
+    let lr: f32 = std::env::var("LOGIT_RANGE").ok().and_then(|s| s.parse().ok()).unwrap_or(6.0);
+    let imp = values(6 * plane, -lr, lr, 1);
     let fus = values(6 * plane, -3.0, 3.0, 2);
     let alb = values(3 * plane, 0.05, 1.0, 3);
     let rad = values(3 * plane, 0.0, 4.0, 4);
@@ -39,10 +41,10 @@ fn main() {
     };
     if std::env::var("PREC").as_deref() == Ok("fixed") {
         let q = |v: &[f32], frac: i8| -> Vec<i16> { v.iter().map(|&x| fixed::from_f32(x, frac)).collect() };
-        let (iq, fq, aq, rq) = (q(&imp, 11), q(&fus, 12), q(&alb, 14), q(&rad, 12));
+        let (iq, fq, aq, rq) = (q(&imp, 8), q(&fus, 12), q(&alb, 14), q(&rad, 12));
         let inp = FusedInputs {
             sizes: &sizes,
-            importance: View::new(&iq, 6, W, H).unwrap().with_frac(11),
+            importance: View::new(&iq, 6, W, H).unwrap().with_frac(8),
             fusion: Some(View::new(&fq, 6, W, H).unwrap().with_frac(12)),
             albedo: Some(View::new(&aq, 3, W, H).unwrap().with_frac(14)),
             radiance: View::new(&rq, 3, W, H).unwrap().with_frac(12),
