@@ -1,7 +1,7 @@
 //! One WSKP training step (forward, SMAPE, the fused filter's gradient,
 //! backward, Adam) on a batch of synthetic crops, the median of REPS steps:
 //! `profile_train [LAYERS] [THREADS] [REPS] [BATCH] [CROP]` (defaults 6, 2,
-//! 20, 8, 128).
+//! 20, 8, 128); `WEIGHTS=FILE` starts from a weights or checkpoint file.
 use mcdenoise::methods::wskp;
 use mcdenoise::nn::loss::Loss;
 use mcdenoise::nn::{Nets, Trainer, Workspace};
@@ -14,15 +14,25 @@ fn main() {
     let (layers, threads, reps, batch, s) = (arg(1, 6), arg(2, 2), arg(3, 20), arg(4, 8), arg(5, 128));
     let isa = std::env::var("ISA").ok().and_then(|v| Isa::from_name(&v)).unwrap_or(Isa::detect());
     let net = wskp::net(layers).unwrap();
-    let params = net.init(1);
+    // WEIGHTS=FILE: start from trained (or checkpointed) parameters instead
+    // of the initialisation (trained logits spread, which the filter's
+    // gradient pays for).
+    let params = match std::env::var("WEIGHTS") {
+        Ok(f) => mcdenoise::train::load_params(std::path::Path::new(&f), &net, "wskp").expect("a WSKP weights file"),
+        Err(_) => net.init(1),
+    };
     let mut tr = Trainer::new(net, params, batch, s, s, 1e-3, 0.0).expect("a trainer");
     for wss in tr.workspaces() {
         wskp::crop_buffers(&mut wss[0]);
     }
     let n = s * s;
     let x = values(10 * n, 0.0, 1.0, 1);
-    let mut data = values(9 * n, 0.05, 1.0, 2);
+    // The crop's data planes (wskp::DATA_PLANES): c, d, the reference, the
+    // exposure (1) and the excess (0).
+    let mut data = values(wskp::DATA_PLANES * n, 0.05, 1.0, 2);
     data[..3 * n].iter_mut().for_each(|v| *v *= 4.0);
+    data[9 * n..10 * n].fill(1.0);
+    data[10 * n..].fill(0.0);
     let pool = Pool::new(threads).unwrap();
     let fill = |_: usize, wss: &mut [Workspace]| {
         let ws = &mut wss[0];
