@@ -368,6 +368,16 @@ fn fused_gradients_survive_extreme_logits() {
     }
 }
 
+/// Logits spread over 160 nats between neighbours (as a long-trained
+/// ImportanceNet's): windows are taken at the tile's shift, at the lower
+/// shifts of the extra passes, or one by one; every way equals the oracle.
+#[test]
+fn fused_gradients_at_spread_logits() {
+    for (scale, seed) in [(80.0f32, 11u64), (35.0, 12), (60.0, 13)] {
+        check_fused(45, 37, &[3, 5, 7, 9, 11, 13], true, true, scale, seed, false);
+    }
+}
+
 /// The max pool's gradient follows the forward pool's choice: the pooled
 /// value is the input at the pixel the gradient goes to.
 #[test]

@@ -27,10 +27,16 @@
 //! and its `2r` halo), so the result does not depend on how the rows are cut
 //! into bands. A window whose shifted denominator falls below
 //! [`GRAD_TINY`] (its logits lie more than ~41 nats under the region's
-//! largest) is computed directly with its own maximum as the shift, its
-//! terms added to the `q` of the band one by one: no overflow, no `0 / 0`,
-//! for any logit (clamped to `±LOGIT_LIMIT`, NaN weighing 0 as in the
-//! forward pass).
+//! largest) is taken by one of [`GRAD_EXTRA_PASSES`] more passes of the same
+//! box sums at shifts [`GRAD_SHIFT_STEP`] lower each, restricted to the
+//! windows left (the sums over `p` split into the passes' disjoint sets);
+//! only a window left after them is computed directly with its own maximum
+//! as the shift, its terms added to the `q` of the band one by one: no
+//! overflow, no `0 / 0`, for any logit (clamped to `±LOGIT_LIMIT`, NaN
+//! weighing 0 as in the forward pass). A trained ImportanceNet's logits
+//! spread by more than 41 nats between neighbours, and the window-by-window
+//! path made a WSKP-6 training step 8x slower (480 against 60 ms,
+//! `profile_train`); with the extra passes it is 107 ms.
 //!
 //! Every path compiles the same loops for its ISA (the compiler vectorises
 //! them), so the gradients are the same bits on every ISA.
@@ -127,6 +133,19 @@ pub fn sigmoid_grad(isa: Isa, y: &View<'_, f32>, dy: &View<'_, f32>, dx: &mut Vi
 pub const GRAD_TILE_H: usize = 32;
 /// Columns of the fused gradient's tile grid.
 pub const GRAD_TILE_W: usize = 256;
+/// Passes of the gradient after the first, each at a shift
+/// [`GRAD_SHIFT_STEP`] lower, for the windows whose denominator fell under
+/// [`GRAD_TINY`] at the previous one; only what is left after them is
+/// computed window by window.
+pub const GRAD_EXTRA_PASSES: usize = 2;
+/// How far each extra pass lowers the shift (nats): under the ~41.6 nats
+/// below which every logit of a window left must lie, so the window's
+/// weights stay under 1 at the new shift.
+pub const GRAD_SHIFT_STEP: f32 = 40.0;
+/// The largest exponent of a weight in a pass (e^80, finite in f32): the
+/// pixels above it belong to no window that pass takes.
+const GRAD_E_CAP: f32 = 80.0;
+
 /// A shifted window denominator below this (2^-60) is recomputed with the
 /// window's own shift.
 pub const GRAD_TINY: f32 = 8.673_617e-19;
@@ -433,71 +452,141 @@ fn tile_grad(
                 mx = mx.max(logit(v));
             }
         }
-        for y in er.y0..er.y1 {
-            let o = (y - er.y0) * ew;
-            for (ev, &v) in e[o..o + ew].iter_mut().zip(&imp.row(kk, y)[er.x0..er.x1]) {
-                *ev = ex(logit(v) - mx);
+        // Passes at shifts `mx`, `mx - GRAD_SHIFT_STEP`, ...: pass 0 takes
+        // every window whose shifted denominator reaches GRAD_TINY; each
+        // later pass takes, of the windows left, those that reach it at the
+        // lower shift (every logit of a window left lies more than ~41 nats
+        // under the previous shift, so its weights stay below 1 and its sums
+        // exact; the other pixels' weights are capped at e^GRAD_E_CAP, finite,
+        // and enter no window of the pass). What is left after the last pass
+        // is computed directly with each window's own shift.
+        let mut any_fallback = false;
+        for pass in 0..=GRAD_EXTRA_PASSES {
+            if pass > 0 && !any_fallback {
+                break;
             }
-        }
-        // D' and N over p: horizontal sums (rows of er, columns of p), then vertical.
-        for y in er.y0..er.y1 {
-            let (o, ho) = ((y - er.y0) * ew, (y - er.y0) * pw);
-            let erow = &e[o..o + ew];
-            box_row(erow, er.x0, &mut hsum[ho..ho + pw], p.x0, r, w);
-            for ch in 0..c {
-                let prod = &mut row_tmp[..ew];
-                for ((t, &ev), &rv) in prod.iter_mut().zip(erow).zip(&inp.radiance.row(ch, y)[er.x0..er.x1]) {
-                    *t = ev * rv;
+            let shift = mx - pass as f32 * GRAD_SHIFT_STEP;
+            for y in er.y0..er.y1 {
+                let o = (y - er.y0) * ew;
+                for (ev, &v) in e[o..o + ew].iter_mut().zip(&imp.row(kk, y)[er.x0..er.x1]) {
+                    *ev = ex((logit(v) - shift).min(GRAD_E_CAP));
                 }
-                box_row(prod, er.x0, &mut hsum[(1 + ch) * cap + ho..(1 + ch) * cap + ho + pw], p.x0, r, w);
             }
-        }
-        for y in p.y0..p.y1 {
-            let (lo, hi) = (y.saturating_sub(r), (y + r + 1).min(h));
-            let o = (y - p.y0) * pw;
-            for pl in 0..=c {
-                let dst = &mut dn[pl * cap + o..pl * cap + o + pw];
-                dst.fill(0.0);
-                for yy in lo..hi {
-                    let so = pl * cap + (yy - er.y0) * pw;
-                    for (d, &v) in dst.iter_mut().zip(&hsum[so..so + pw]) {
-                        *d += v;
+            // D' and N over p: horizontal sums (rows of er, columns of p), then vertical.
+            for y in er.y0..er.y1 {
+                let (o, ho) = ((y - er.y0) * ew, (y - er.y0) * pw);
+                let erow = &e[o..o + ew];
+                box_row(erow, er.x0, &mut hsum[ho..ho + pw], p.x0, r, w);
+                for ch in 0..c {
+                    let prod = &mut row_tmp[..ew];
+                    for ((t, &ev), &rv) in prod.iter_mut().zip(erow).zip(&inp.radiance.row(ch, y)[er.x0..er.x1]) {
+                        *t = ev * rv;
+                    }
+                    box_row(prod, er.x0, &mut hsum[(1 + ch) * cap + ho..(1 + ch) * cap + ho + pw], p.x0, r, w);
+                }
+            }
+            for y in p.y0..p.y1 {
+                let (lo, hi) = (y.saturating_sub(r), (y + r + 1).min(h));
+                let o = (y - p.y0) * pw;
+                for pl in 0..=c {
+                    let dst = &mut dn[pl * cap + o..pl * cap + o + pw];
+                    dst.fill(0.0);
+                    for yy in lo..hi {
+                        let so = pl * cap + (yy - er.y0) * pw;
+                        for (d, &v) in dst.iter_mut().zip(&hsum[so..so + pw]) {
+                            *d += v;
+                        }
+                    }
+                }
+            }
+            // R, u = g / D', v = sum_c u_c R_c over p for the windows this
+            // pass takes; the others get u = v = 0 (and keep their R).
+            any_fallback = false;
+            for y in p.y0..p.y1 {
+                let o = (y - p.y0) * pw;
+                let inv = &mut row_tmp[..pw];
+                for ((iv, fb), &d) in inv.iter_mut().zip(&mut fallback[o..o + pw]).zip(&dn[o..o + pw]) {
+                    // Pass 0: every window is open; later: those left open.
+                    let open = pass == 0 || *fb != 0.0;
+                    let small = !(d >= GRAD_TINY);
+                    *fb = if open && small { 1.0 } else { 0.0 };
+                    *iv = if open && !small { 1.0 / d } else { 0.0 };
+                }
+                any_fallback |= fallback[o..o + pw].iter().any(|&f| f != 0.0);
+                let ao = (y - pa.y0) * paw + (p.x0 - pa.x0);
+                let al = &alpha[kk * cap + ao..kk * cap + ao + pw];
+                uv[c * cap + o..c * cap + o + pw].fill(0.0);
+                for ch in 0..c {
+                    let gr = &g.row(ch, y)[p.x0..p.x1];
+                    let ar = alb_row(ch, y).map(|a| &a[p.x0..p.x1]);
+                    let (nr, rrow) = (&dn[(1 + ch) * cap + o..(1 + ch) * cap + o + pw], ch * cap + o);
+                    let (uvc, vrow) = uv.split_at_mut(c * cap);
+                    let vrow = &mut vrow[o..o + pw];
+                    for x in 0..pw {
+                        let taken = inv[x] != 0.0;
+                        let rv = if taken { nr[x] * inv[x] } else { rr[rrow + x] };
+                        rr[rrow + x] = rv;
+                        let gk = gr[x] * ar.map_or(1.0, |a| a[x]) * al[x];
+                        let u = gk * inv[x];
+                        uvc[ch * cap + o + x] = u;
+                        vrow[x] += if taken { u * rv } else { 0.0 };
+                    }
+                }
+            }
+            // U, V over q: horizontal sums (rows of p, columns of q), then vertical.
+            for y in p.y0..p.y1 {
+                let (o, ho) = ((y - p.y0) * pw, (y - p.y0) * qw);
+                for pl in 0..=c {
+                    let (src, dst) =
+                        (&uv[pl * cap + o..pl * cap + o + pw], &mut uvh[pl * cap + ho..pl * cap + ho + qw]);
+                    box_row(src, p.x0, dst, q.x0, r, w);
+                }
+            }
+            for y in q.y0..q.y1 {
+                let (lo, hi) = (y.saturating_sub(r), (y + r + 1).min(h));
+                let o = (y - q.y0) * qw;
+                for pl in 0..=c {
+                    let dst = &mut uvs[pl * cap + o..pl * cap + o + qw];
+                    dst.fill(0.0);
+                    for yy in lo..hi {
+                        let so = pl * cap + (yy - p.y0) * qw;
+                        for (d, &v) in dst.iter_mut().zip(&uvh[so..so + qw]) {
+                            *d += v;
+                        }
+                    }
+                }
+            }
+            // dI and dc over q (pass 0 writes dI, later passes add to it).
+            for y in q.y0..q.y1 {
+                let o = (y - q.y0) * qw;
+                let eo = (y - er.y0) * ew + (q.x0 - er.x0);
+                let ev = &e[eo..eo + qw];
+                let t = &mut row_tmp[..qw];
+                for (tv, &v) in t.iter_mut().zip(&uvs[c * cap + o..c * cap + o + qw]) {
+                    *tv = -v;
+                }
+                for ch in 0..c {
+                    let u = &uvs[ch * cap + o..ch * cap + o + qw];
+                    let rad = &inp.radiance.row(ch, y)[q.x0..q.x1];
+                    let drow = &mut d_rad.row_mut(ch, y - y0)[q.x0..q.x1];
+                    for x in 0..qw {
+                        t[x] += rad[x] * u[x];
+                        drow[x] += ev[x] * u[x];
+                    }
+                }
+                let drow = &mut d_imp.row_mut(kk, y - y0)[q.x0..q.x1];
+                if pass == 0 {
+                    for ((d, &evx), &tv) in drow.iter_mut().zip(ev).zip(t.iter()) {
+                        *d = evx * tv;
+                    }
+                } else {
+                    for ((d, &evx), &tv) in drow.iter_mut().zip(ev).zip(t.iter()) {
+                        *d += evx * tv;
                     }
                 }
             }
         }
-        // R, u = g / D', v = sum_c u_c R_c over p; windows too small for the
-        // shift get u = v = 0 here and are done directly below.
-        let mut any_fallback = false;
-        for y in p.y0..p.y1 {
-            let o = (y - p.y0) * pw;
-            let inv = &mut row_tmp[..pw];
-            for ((iv, fb), &d) in inv.iter_mut().zip(&mut fallback[o..o + pw]).zip(&dn[o..o + pw]) {
-                let small = !(d >= GRAD_TINY);
-                *fb = if small { 1.0 } else { 0.0 };
-                let r = 1.0 / d;
-                *iv = if small { 0.0 } else { r };
-            }
-            any_fallback |= fallback[o..o + pw].iter().any(|&f| f != 0.0);
-            let ao = (y - pa.y0) * paw + (p.x0 - pa.x0);
-            let al = &alpha[kk * cap + ao..kk * cap + ao + pw];
-            uv[c * cap + o..c * cap + o + pw].fill(0.0);
-            for ch in 0..c {
-                let gr = &g.row(ch, y)[p.x0..p.x1];
-                let ar = alb_row(ch, y).map(|a| &a[p.x0..p.x1]);
-                let (nr, rrow) = (&dn[(1 + ch) * cap + o..(1 + ch) * cap + o + pw], ch * cap + o);
-                let (uvc, vrow) = uv.split_at_mut(c * cap);
-                let vrow = &mut vrow[o..o + pw];
-                for x in 0..pw {
-                    let rv = nr[x] * inv[x];
-                    rr[rrow + x] = rv;
-                    let gk = gr[x] * ar.map_or(1.0, |a| a[x]) * al[x];
-                    let u = gk * inv[x];
-                    uvc[ch * cap + o + x] = u;
-                    vrow[x] += u * rv;
-                }
-            }
-        }
+        // The windows left: R with their own shift, then their terms, one by one, into q.
         if any_fallback {
             for y in p.y0..p.y1 {
                 for x in p.x0..p.x1 {
@@ -510,60 +599,6 @@ fn tile_grad(
                     }
                 }
             }
-        }
-        // U, V over q: horizontal sums (rows of p, columns of q), then vertical.
-        for y in p.y0..p.y1 {
-            let (o, ho) = ((y - p.y0) * pw, (y - p.y0) * qw);
-            for pl in 0..=c {
-                let (src, dst) = (&uv[pl * cap + o..pl * cap + o + pw], &mut uvh[pl * cap + ho..pl * cap + ho + qw]);
-                box_row(src, p.x0, dst, q.x0, r, w);
-            }
-        }
-        for y in q.y0..q.y1 {
-            let (lo, hi) = (y.saturating_sub(r), (y + r + 1).min(h));
-            let o = (y - q.y0) * qw;
-            for pl in 0..=c {
-                let dst = &mut uvs[pl * cap + o..pl * cap + o + qw];
-                dst.fill(0.0);
-                for yy in lo..hi {
-                    let so = pl * cap + (yy - p.y0) * qw;
-                    for (d, &v) in dst.iter_mut().zip(&uvh[so..so + qw]) {
-                        *d += v;
-                    }
-                }
-            }
-        }
-        // dI, dc and d_k over q.
-        for y in q.y0..q.y1 {
-            let o = (y - q.y0) * qw;
-            let eo = (y - er.y0) * ew + (q.x0 - er.x0);
-            let ev = &e[eo..eo + qw];
-            let po = (y - p.y0) * pw + (q.x0 - p.x0);
-            let t = &mut row_tmp[..qw];
-            for (tv, &v) in t.iter_mut().zip(&uvs[c * cap + o..c * cap + o + qw]) {
-                *tv = -v;
-            }
-            let dkr = &mut dk[kk * cap + o..kk * cap + o + qw];
-            dkr.fill(0.0);
-            for ch in 0..c {
-                let u = &uvs[ch * cap + o..ch * cap + o + qw];
-                let rad = &inp.radiance.row(ch, y)[q.x0..q.x1];
-                let gr = &g.row(ch, y)[q.x0..q.x1];
-                let ar = alb_row(ch, y).map(|a| &a[q.x0..q.x1]);
-                let rrow = &rr[ch * cap + po..ch * cap + po + qw];
-                let drow = &mut d_rad.row_mut(ch, y - y0)[q.x0..q.x1];
-                for x in 0..qw {
-                    t[x] += rad[x] * u[x];
-                    drow[x] += ev[x] * u[x];
-                    dkr[x] += gr[x] * ar.map_or(1.0, |a| a[x]) * rrow[x];
-                }
-            }
-            for ((d, &evx), &tv) in d_imp.row_mut(kk, y - y0)[q.x0..q.x1].iter_mut().zip(ev).zip(t.iter()) {
-                *d = evx * tv;
-            }
-        }
-        // The windows done directly: their terms, one by one, into q.
-        if any_fallback {
             for py in p.y0..p.y1 {
                 for px in p.x0..p.x1 {
                     let i = p.at(py, px);
@@ -591,6 +626,21 @@ fn tile_grad(
                             d_imp.row_mut(kk, yy - y0)[xx] += wq * t;
                         }
                     }
+                }
+            }
+        }
+        // d_k over q, from every window's R.
+        for y in q.y0..q.y1 {
+            let o = (y - q.y0) * qw;
+            let po = (y - p.y0) * pw + (q.x0 - p.x0);
+            let dkr = &mut dk[kk * cap + o..kk * cap + o + qw];
+            dkr.fill(0.0);
+            for ch in 0..c {
+                let gr = &g.row(ch, y)[q.x0..q.x1];
+                let ar = alb_row(ch, y).map(|a| &a[q.x0..q.x1]);
+                let rrow = &rr[ch * cap + po..ch * cap + po + qw];
+                for x in 0..qw {
+                    dkr[x] += gr[x] * ar.map_or(1.0, |a| a[x]) * rrow[x];
                 }
             }
         }
