@@ -114,6 +114,40 @@ proptest! {
         }
     }
 
+    /// Logits spread so that many windows lie 69 to 130 nats under their
+    /// tile's largest (the box-sum and separable paths' second pass at a
+    /// lower shift) and some further (window by window): both paths equal
+    /// the direct one, for one window size and for the six fused.
+    #[test]
+    fn boxsum_equals_direct_at_spread_logits(w in 1usize..80, h in 1usize..60, k in odd_k(9), scale in prop_oneof![Just(45.0f32), Just(70.0), Just(110.0)], seed: u64) {
+        let logits = Img::random(1, w, h, -scale, scale, seed);
+        let rad = Img::random(3, w, h, 0.0, 10.0, seed ^ 5);
+        let sizes = [3usize, 5, 7, 9, 11, 13];
+        let imp = Img::random(6, w, h, -scale, scale, seed ^ 7);
+        let fus = Img::random(6, w, h, -3.0, 3.0, seed ^ 9);
+        for isa in isas_under_test() {
+            let mut outs = Vec::new();
+            let mut fused = Vec::new();
+            for path in [WindowPath::Direct, WindowPath::BoxSum, WindowPath::Separable] {
+                let mut out = Img::filled(3, w, h, f32::NAN);
+                let mut scratch = vec![0.0; softmax::window_scratch_len::<F32>(path, k, 3, w)];
+                softmax::window_filter::<F32>(isa, path, k, &logits.view(), &rad.view(), &mut out.view_mut(), 0, &mut scratch).unwrap();
+                outs.push(out);
+                let inp = FusedInputs { sizes: &sizes, importance: imp.view(), fusion: Some(fus.view()), albedo: None, radiance: rad.view() };
+                let mut out = Img::filled(3, w, h, f32::NAN);
+                let mut scratch = vec![0.0; softmax::fused_scratch_len::<F32>(path, &sizes, 3, w)];
+                softmax::fused_filter::<F32>(isa, path, &inp, &mut out.view_mut(), 0, &mut scratch).unwrap();
+                fused.push(out);
+            }
+            let direct: Vec<f64> = outs[0].data.iter().map(|&v| v as f64).collect();
+            assert_close(&format!("box-sum {isa:?} k={k} scale={scale}"), &outs[1].data, &direct, 2e-5, 2e-5);
+            assert_close(&format!("separable {isa:?} k={k} scale={scale}"), &outs[2].data, &direct, 2e-5, 2e-5);
+            let direct: Vec<f64> = fused[0].data.iter().map(|&v| v as f64).collect();
+            assert_close(&format!("fused box-sum {isa:?} scale={scale}"), &fused[1].data, &direct, 2e-5, 2e-5);
+            assert_close(&format!("fused separable {isa:?} scale={scale}"), &fused[2].data, &direct, 2e-5, 2e-5);
+        }
+    }
+
     /// A delta kernel (one at the centre tap) is the identity, bit for bit.
     #[test]
     fn delta_kernel_is_identity(w in 1usize..70, h in 1usize..20, c in 1usize..6, k in odd_k(15), seed: u64) {

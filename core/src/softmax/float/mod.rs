@@ -19,6 +19,15 @@ pub(crate) mod avx2;
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod avx512;
 
+/// How far the box-sum and separable paths' second pass lowers a size's
+/// shift (nats) for the windows whose denominator fell under `TINY` (their
+/// logits all lie more than ~69 nats under the tile's largest, so at the
+/// new shift their weights stay under 1; the tile's other weights stay
+/// under e^60, finite). Only what is still under it after that pass is
+/// computed window by window. f32 arithmetic only (f16-rounded arithmetic
+/// computes window by window, as before).
+pub(crate) const FWD_SHIFT_STEP: f32 = 60.0;
+
 /// Output rows per tile of the box-sum path.
 pub(crate) const TILE_H: usize = 48;
 /// Output columns per tile of the box-sum path.
@@ -142,6 +151,7 @@ pub(crate) fn boxsum_scratch_len(sizes: &[usize], channels: usize, width: usize)
         crate::sat_prod(&[np, l]),
         tw,
         crate::sat_prod(&[3, np, l]),
+        crate::sat_prod(&[th.saturating_add(channels), tw]),
     ])
 }
 
@@ -155,6 +165,7 @@ pub(crate) fn separable_scratch_len(sizes: &[usize], channels: usize, width: usi
         kmax.saturating_mul(SEP_SS),
         np.saturating_mul(SEP_LS),
         tw,
+        crate::sat_prod(&[TILE_H.saturating_add(channels), tw]),
     ])
 }
 
@@ -504,9 +515,12 @@ fn tile<S: FloatElement, A: Real, O: Ops<A>>(
     let (p_buf, rest) = rest.split_at_mut(np * tmax * lmax);
     let (v_buf, rest) = rest.split_at_mut(np * lmax);
     let (den, rest) = rest.split_at_mut(tw);
-    let lv = &mut rest[..3 * np * lmax];
+    let (lv, rest) = rest.split_at_mut(3 * np * lmax);
+    let (mask, rest) = rest.split_at_mut(th * tw);
+    let extra = &mut rest[..ch * tw];
     acc.fill(A::ZERO);
     fusion_weights(o, inp, ytop, th, tx, tw, alpha);
+    let passes = if A::IS_F32 { 2 } else { 1 };
     for (i, &k) in inp.sizes.iter().enumerate() {
         let r = k / 2;
         let ri = r as isize;
@@ -514,45 +528,92 @@ fn tile<S: FloatElement, A: Real, O: Ops<A>>(
         let row = np * l; // words per carried row (all planes)
         let (u0, u1, xs, xe) = carried(tx, l, r, w);
 
-        let shift = cell_shift(o, imp, i, r, cell, xs, xe);
-
-        // Carried rows: from the start of the block holding the first window's
-        // top row to the last window's bottom row.
-        let ybase = block_start(ytop as isize - ri, k);
-        let tt = ((ytop + th + r) as isize - ybase) as usize;
-        // Absolute row of carried row t is ybase + t; blocks start where that is 0 mod k.
-        let block_pos = |t: usize| (ybase + t as isize).rem_euclid(k as isize) as usize;
-        let mut rads: [&[S]; MAX_CHANNELS] = [&[]; MAX_CHANNELS];
-        for t in 0..tt {
-            let yy = ybase + t as isize;
-            let lrow = source_row(o, inp, i, yy, xs, xe, &mut rads);
-            let a_row = &mut a_buf[t * row..(t + 1) * row];
-            let (p_before, p_rest) = p_buf.split_at_mut(t * row);
-            let p_prev = (t > 0 && block_pos(t) != 0).then(|| &p_before[(t - 1) * row..]);
-            o.forward_row(lrow, &rads[..ch], shift, u0, u1, a_row, p_prev, &mut p_rest[..row]);
-        }
-        // Suffix within blocks, in place, walking up; emit windows as they complete.
-        let first_out = (ytop as isize - ri - ybase) as usize; // carried row of the first window's top
-        for t in (0..tt).rev() {
-            let block_last = block_pos(t) == k - 1 || t == tt - 1;
-            let emit = t >= first_out && t < first_out + th;
-            // Window rows t ..= t + k - 1: one whole block, or a suffix plus a prefix.
-            let p_win = (emit && block_pos(t) != 0).then(|| &p_buf[(t + k - 1) * row..(t + k) * row]);
-            let (a_cur, a_next) = a_buf.split_at_mut((t + 1) * row);
-            let next = (!block_last).then(|| &a_next[..row]);
-            o.backward_row(&mut a_cur[t * row..], next, p_win, emit.then_some(&mut v_buf[..row]));
-            if !emit {
-                continue;
+        let shift0 = cell_shift(o, imp, i, r, cell, xs, xe);
+        let mut any_left = false;
+        for pass in 0..passes {
+            if pass > 0 && !any_left {
+                break;
             }
-            let ot = t - first_out; // output row within the tile
-            let arow = &alpha[(i * th + ot) * tw..(i * th + ot + 1) * tw];
-            let any_tiny = o.horizontal_accumulate(&v_buf[..row], np, k, arow, &mut acc[ot * tw..], th * tw, den, lv);
-            if any_tiny {
-                tiny_fallback(inp, i, den, arow, ytop + ot, tx, &mut acc[ot * tw..], th * tw);
+            let shift = shift0 - A::of(pass as f32 * FWD_SHIFT_STEP);
+
+            // Carried rows: from the start of the block holding the first window's
+            // top row to the last window's bottom row.
+            let ybase = block_start(ytop as isize - ri, k);
+            let tt = ((ytop + th + r) as isize - ybase) as usize;
+            // Absolute row of carried row t is ybase + t; blocks start where that is 0 mod k.
+            let block_pos = |t: usize| (ybase + t as isize).rem_euclid(k as isize) as usize;
+            let mut rads: [&[S]; MAX_CHANNELS] = [&[]; MAX_CHANNELS];
+            for t in 0..tt {
+                let yy = ybase + t as isize;
+                let lrow = source_row(o, inp, i, yy, xs, xe, &mut rads);
+                let a_row = &mut a_buf[t * row..(t + 1) * row];
+                let (p_before, p_rest) = p_buf.split_at_mut(t * row);
+                let p_prev = (t > 0 && block_pos(t) != 0).then(|| &p_before[(t - 1) * row..]);
+                o.forward_row(lrow, &rads[..ch], shift, u0, u1, a_row, p_prev, &mut p_rest[..row]);
+            }
+            // Suffix within blocks, in place, walking up; emit windows as they complete.
+            let first_out = (ytop as isize - ri - ybase) as usize; // carried row of the first window's top
+            for t in (0..tt).rev() {
+                let block_last = block_pos(t) == k - 1 || t == tt - 1;
+                let emit = t >= first_out && t < first_out + th;
+                // Window rows t ..= t + k - 1: one whole block, or a suffix plus a prefix.
+                let p_win = (emit && block_pos(t) != 0).then(|| &p_buf[(t + k - 1) * row..(t + k) * row]);
+                let (a_cur, a_next) = a_buf.split_at_mut((t + 1) * row);
+                let next = (!block_last).then(|| &a_next[..row]);
+                o.backward_row(&mut a_cur[t * row..], next, p_win, emit.then_some(&mut v_buf[..row]));
+                if !emit {
+                    continue;
+                }
+                let ot = t - first_out; // output row within the tile
+                let arow = &alpha[(i * th + ot) * tw..(i * th + ot + 1) * tw];
+                let mrow = &mut mask[ot * tw..(ot + 1) * tw];
+                let last = pass + 1 == passes;
+                let any_tiny = if pass == 0 {
+                    o.horizontal_accumulate(&v_buf[..row], np, k, arow, &mut acc[ot * tw..], th * tw, den, lv)
+                } else {
+                    extra.fill(A::ZERO);
+                    let t = o.horizontal_accumulate(&v_buf[..row], np, k, arow, extra, tw, den, lv);
+                    add_marked(extra, tw, mrow, den, &mut acc[ot * tw..], th * tw);
+                    t
+                };
+                if any_tiny {
+                    if last {
+                        tiny_fallback(inp, i, den, arow, ytop + ot, tx, &mut acc[ot * tw..], th * tw);
+                    } else {
+                        mark_tiny(den, mrow);
+                        any_left = true;
+                    }
+                } else if !last {
+                    mrow.fill(A::ZERO);
+                }
             }
         }
     }
     finish_tile(o, inp, dst, y0, ytop, th, tx, tw, acc);
+}
+
+/// A later pass's sums for the marked columns (those under `TINY` before)
+/// whose window sum now reaches it, added into `acc`; the other columns'
+/// values (resolved by an earlier pass, and at this pass's lower shift
+/// possibly overflowed) are dropped.
+#[inline(always)]
+fn add_marked<A: Real>(extra: &[A], plane: usize, mask: &[A], den: &[A], acc: &mut [A], acc_plane: usize) {
+    for (c, e) in extra.chunks(plane).enumerate() {
+        let a = &mut acc[c * acc_plane..c * acc_plane + mask.len()];
+        for (((av, &ev), &m), &d) in a.iter_mut().zip(e).zip(mask).zip(den) {
+            if m != A::ZERO && d >= A::TINY {
+                *av += ev;
+            }
+        }
+    }
+}
+
+/// Marks the columns whose window sum fell under `TINY` (1) and clears the rest.
+#[inline(always)]
+fn mark_tiny<A: Real>(den: &[A], mask: &mut [A]) {
+    for (m, &d) in mask.iter_mut().zip(den) {
+        *m = if d >= A::TINY { A::ZERO } else { A::ONE };
+    }
 }
 
 /// The separable path: the box-sum path's grid cells and shifts (so the two
@@ -621,31 +682,57 @@ fn sep_tile<S: FloatElement, A: Real, O: Ops<A> + SepOps<A>>(
     let (alpha, rest) = rest.split_at_mut(m * th * tw);
     let (ring, rest) = rest.split_at_mut(kmax * SEP_SS);
     let (v, rest) = rest.split_at_mut(np * SEP_LS);
-    let den = &mut rest[..tw];
+    let (den, rest) = rest.split_at_mut(tw);
+    let (mask, rest) = rest.split_at_mut(th * tw);
+    let extra = &mut rest[..ch * tw];
     acc.fill(A::ZERO);
     fusion_weights(o, inp, ytop, th, tx, tw, alpha);
     let mut rads: [&[S]; MAX_CHANNELS] = [&[]; MAX_CHANNELS];
+    let passes = if A::IS_F32 { 2 } else { 1 };
     for (i, &k) in inp.sizes.iter().enumerate() {
         let r = k / 2;
         let ri = r as isize;
         let l = tw + 2 * r; // columns carried for this size
         let (u0, u1, xs, xe) = carried(tx, l, r, w);
-        for t in 0..th + 2 * r {
-            let yy = ytop as isize - ri + t as isize;
-            let lrow = source_row(o, inp, i, yy, xs, xe, &mut rads);
-            let slot = yy.rem_euclid(k as isize) as usize;
-            let wrow = &mut ring[slot * SEP_SS..slot * SEP_SS + np * SEP_LS];
-            o.weights_row(lrow, &rads[..ch], shifts[i], u0, u1, wrow);
-            if t < 2 * r {
-                continue;
+        let mut any_left = false;
+        for pass in 0..passes {
+            if pass > 0 && !any_left {
+                break;
             }
-            // Rows yy - 2r ..= yy are in: the windows of output row yy - r.
-            let ot = t - 2 * r;
-            o.vertical_sum(&ring[..(k - 1) * SEP_SS + np * SEP_LS], k, v);
-            let arow = &alpha[(i * th + ot) * tw..(i * th + ot + 1) * tw];
-            let any_tiny = o.horizontal_direct(v, np, k, arow, &mut acc[ot * tw..], th * tw, den);
-            if any_tiny {
-                tiny_fallback(inp, i, den, arow, ytop + ot, tx, &mut acc[ot * tw..], th * tw);
+            let shift = shifts[i] - A::of(pass as f32 * FWD_SHIFT_STEP);
+            for t in 0..th + 2 * r {
+                let yy = ytop as isize - ri + t as isize;
+                let lrow = source_row(o, inp, i, yy, xs, xe, &mut rads);
+                let slot = yy.rem_euclid(k as isize) as usize;
+                let wrow = &mut ring[slot * SEP_SS..slot * SEP_SS + np * SEP_LS];
+                o.weights_row(lrow, &rads[..ch], shift, u0, u1, wrow);
+                if t < 2 * r {
+                    continue;
+                }
+                // Rows yy - 2r ..= yy are in: the windows of output row yy - r.
+                let ot = t - 2 * r;
+                o.vertical_sum(&ring[..(k - 1) * SEP_SS + np * SEP_LS], k, v);
+                let arow = &alpha[(i * th + ot) * tw..(i * th + ot + 1) * tw];
+                let mrow = &mut mask[ot * tw..(ot + 1) * tw];
+                let last = pass + 1 == passes;
+                let any_tiny = if pass == 0 {
+                    o.horizontal_direct(v, np, k, arow, &mut acc[ot * tw..], th * tw, den)
+                } else {
+                    extra.fill(A::ZERO);
+                    let t = o.horizontal_direct(v, np, k, arow, extra, tw, den);
+                    add_marked(extra, tw, mrow, den, &mut acc[ot * tw..], th * tw);
+                    t
+                };
+                if any_tiny {
+                    if last {
+                        tiny_fallback(inp, i, den, arow, ytop + ot, tx, &mut acc[ot * tw..], th * tw);
+                    } else {
+                        mark_tiny(den, mrow);
+                        any_left = true;
+                    }
+                } else if !last {
+                    mrow.fill(A::ZERO);
+                }
             }
         }
     }
