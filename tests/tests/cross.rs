@@ -283,6 +283,47 @@ proptest! {
     }
 }
 
+/// Pilots at the host's sanitised f32 range (±1e20, where squared colour
+/// differences overflow) and bandwidths from tiny to huge: the filter and
+/// its gradient stay finite on every instruction set.
+#[test]
+fn filter_and_gradient_stay_finite_at_the_range_limit() {
+    let (w, h) = (13, 7);
+    for (k, seed) in [(0usize, 3u64), (1, 4), (2, 5)] {
+        let mut s = FilterScene::random(w, h, seed);
+        for (i, v) in s.pa.data.iter_mut().enumerate() {
+            if (i + k) % 5 == 0 {
+                *v = 1e20;
+            } else if (i + k) % 7 == 0 {
+                *v = -1e20;
+            }
+        }
+        for (i, v) in s.pb.data.iter_mut().enumerate() {
+            if (i + 2 * k) % 3 == 0 {
+                *v = 1e20;
+            }
+        }
+        let mut params = Img::random(6, w, h, -2.0, 2.0, seed + 7);
+        for (i, p) in params.data.iter_mut().enumerate() {
+            *p = match i % 4 {
+                0 => 1e19,
+                1 => 1e-6,
+                _ => *p,
+            };
+        }
+        let g = Img::random(6, w, h, -1.0, 1.0, seed + 8);
+        for isa in isas_under_test() {
+            let out = filter(isa, &s, &params);
+            assert!(out.data.iter().all(|v| v.is_finite()), "{isa:?}: non-finite filter output");
+            let mut dp = Img::zeros(6, w, h);
+            let mut scratch = vec![f32::NAN; regress::filter_scratch_len(w)];
+            regress::filter_grad_rows(isa, &s.inputs(), &params.view(), &g.view(), &mut dp.view_mut(), 0, &mut scratch)
+                .unwrap();
+            assert!(dp.data.iter().all(|v| v.is_finite()), "{isa:?}: non-finite gradient");
+        }
+    }
+}
+
 /// Bad shapes and short scratch are errors naming the argument.
 #[test]
 fn bad_shapes_are_errors() {

@@ -34,7 +34,8 @@
 //! its validity `v` in `[0, 1]`: `a = v alpha + 1 - v`, and the outputs are
 //! `a s_X + (1 - a) q` (A, B) and `a s + (1 - a) q` (combined). The backward
 //! pass maps gradients of the two per-pilot outputs (what the loss sees) to
-//! the six raw outputs.
+//! the six raw outputs; a gradient that overflows f32 (pilots near the
+//! sanitised range's 1e20) saturates, and an undefined one is written as 0.
 
 use crate::error::{check_scratch, check_shape, Error, Result, Shape};
 use crate::math::{EXP_C, EXP_HI, EXP_LO, LN2_HI, LN2_LO, LOG2E, ROUND_MAGIC};
@@ -876,6 +877,21 @@ fn window<const GRAD: bool>(
     }
 }
 
+/// A gradient as written: values past f32's range saturate to `±f32::MAX`,
+/// and an undefined one (NaN: terms that overflowed to infinities of both
+/// signs, or met a weight of 0) is 0. Its terms grow with the cube of colour
+/// differences, so pilots within the host's sanitised range (up to 1e20)
+/// overflow where a real render's never do; the contract is a finite
+/// gradient, and a training step treats it like any other.
+#[inline(always)]
+fn saturate(v: f32) -> f32 {
+    if v.is_nan() {
+        0.0
+    } else {
+        v.clamp(-f32::MAX, f32::MAX)
+    }
+}
+
 fn check_params(what: &'static str, s: Shape, v: Shape, y0: usize, c: usize) -> Result<()> {
     check_band(what, Shape::new(c, s.width, s.height), v, y0)
 }
@@ -1030,9 +1046,9 @@ pub fn filter_grad_rows(
                     for j in 0..5 {
                         let r = params.row(j, yo)[x];
                         let kj = k[j][i];
-                        dparams.row_mut(j, yo)[x] = dk[j] * (-2.0 * r * kj * kj);
+                        dparams.row_mut(j, yo)[x] = saturate(dk[j] * (-2.0 * r * kj * kj));
                     }
-                    dparams.row_mut(5, yo)[x] = da * v * alpha * (1.0 - alpha);
+                    dparams.row_mut(5, yo)[x] = saturate(da * v * alpha * (1.0 - alpha));
                 }
                 x0 += n;
             }
