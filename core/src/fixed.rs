@@ -71,8 +71,10 @@ pub(crate) fn div_round(a: i64, b: i64) -> i64 {
 }
 
 /// `2^(y / 256)` in Q.16 for `y <= 0` given in Q.8 (0 below `2^-17`).
-/// Degree-4 polynomial for the fraction (max relative error 1e-5).
-#[inline(always)]
+/// Degree-4 polynomial for the fraction (max relative error 1e-5). Written
+/// with branches and `i64` products: the reference [`exp_q8`]'s branch-free
+/// form is tested against (tests only).
+#[cfg(test)]
 pub(crate) fn exp2_q8(y: i32) -> i32 {
     if y > 0 {
         return WEIGHT_ONE; // callers only pass y <= 0
@@ -94,12 +96,43 @@ pub(crate) fn exp2_q8(y: i32) -> i32 {
     shr_round(m, -n) as i32
 }
 
-/// `e^x` in Q.16 for `x <= 0` given in Q.8 (the logit format's unit).
+/// `e^x` in Q.16 for `x <= 0` given in Q.8 (the logit format's unit; `x > 0`
+/// gives 1): `exp2_q8` of `x log2(e)` (log2(e) in Q.14 is 23637, the product
+/// rounded as `shr_round`), written without branches on the value so that a
+/// row of them vectorises. Below -4096 (e^-16) the result is 0, and above
+/// that every product fits 32 bits (the polynomial's in `u32`); the same bits
+/// as the composition, tested over every input from -80,000 up.
 #[inline(always)]
 pub(crate) fn exp_q8(x: i32) -> i32 {
-    // x * log2(e): log2(e) in Q.14 is 23637; |x| < 2^17 keeps the product in i32 range via i64.
-    let y = shr_round(x as i64 * 23637, 14);
-    exp2_q8(y.max(i32::MIN as i64) as i32)
+    let x = x.clamp(-4096, 0);
+    let y = (x * 23637 + (1 << 13)) >> 14;
+    let n = y >> 8;
+    let t = ((y & 255) << 8) as u32;
+    let mut p: u32 = 884;
+    p = 3413 + ((p * t) >> 16);
+    p = 15821 + ((p * t) >> 16);
+    p = 45418 + ((p * t) >> 16);
+    let m = (1u32 << 16) + ((p * t) >> 16);
+    let s = (-n) as u32; // 0 ..= 24
+    let v = (m + ((1u32 << s) >> 1)) >> s;
+    if n < -17 {
+        0
+    } else {
+        v as i32
+    }
+}
+
+/// `num * inv / 2^shift` rounded half away from zero (as [`div_round`]),
+/// with `inv = floor(2^shift / den)`: one division per denominator instead
+/// of one per numerator. Callers keep `|num| inv` below 2^63.
+#[inline(always)]
+pub(crate) fn mul_recip(num: i64, inv: i64, shift: u32) -> i64 {
+    let q = (num.abs() * inv + (1i64 << (shift - 1))) >> shift;
+    if num < 0 {
+        -q
+    } else {
+        q
+    }
 }
 
 /// `log2(v / 2^frac)` in Q.16 for `v > 0` (`i32::MIN / 2` for `v <= 0`).

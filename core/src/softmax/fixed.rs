@@ -1,7 +1,7 @@
 //! The softmax operators in fixed point.
 //!
 //! Logits are read in any format and brought to Q7.8; `e^(l - shift)` comes
-//! from `exp_q8` in Q.16 (its branch-free form, [`exp_q8_lane`]); window
+//! from `exp_q8` in Q.16 (branch-free, so its rows vectorise); window
 //! sums are exact `i64` sums, so the box-sum path can sum in any order (column
 //! sums slid down the tile, then window sums along a row) without
 //! cancellation error. A tile shares one shift (its grid cell's maximum, as
@@ -16,7 +16,7 @@
 //! integer quotient. The portable path uses integer operations only.
 
 use super::{FusedInputs, WindowPath, MAX_CHANNELS, MAX_FUSED};
-use crate::fixed::{ld, rescale, sat16, shr_round, LOGIT_FRAC, QMAX};
+use crate::fixed::{exp_q8, ld, mul_recip, rescale, sat16, shr_round, LOGIT_FRAC, QMAX};
 use crate::view::{View, ViewMut};
 
 /// A box-sum window with a weight sum below this (Q.16: 2^10 = 1/64) is recomputed directly.
@@ -63,41 +63,6 @@ fn recip_exact<const FLOAT: bool>(shift: u32, den: i64) -> i64 {
     }
 }
 
-/// `num * inv / 2^shift`, rounded half away from zero (as `div_round`).
-#[inline(always)]
-fn mul_recip(num: i64, inv: i64, shift: u32) -> i64 {
-    let q = (num.abs() * inv + (1i64 << (shift - 1))) >> shift;
-    if num < 0 {
-        -q
-    } else {
-        q
-    }
-}
-
-/// `exp_q8` without branches on the value (so that a row of them
-/// vectorises), bit for bit the same for every `x <= 0` (and `x > 0` gives 1,
-/// as there): below -4096 (e^-16) the result is 0 either way, and above that
-/// every product fits 32 bits.
-#[inline(always)]
-pub(crate) fn exp_q8_lane(x: i32) -> i32 {
-    let x = x.clamp(-4096, 0);
-    let y = (x * 23637 + (1 << 13)) >> 14; // x log2(e), Q.8, rounded as exp_q8
-    let n = y >> 8;
-    let t = ((y & 255) << 8) as u32;
-    let mut p: u32 = 884;
-    p = 3413 + ((p * t) >> 16);
-    p = 15821 + ((p * t) >> 16);
-    p = 45418 + ((p * t) >> 16);
-    let m = (1u32 << 16) + ((p * t) >> 16);
-    let s = (-n) as u32; // 0 ..= 24
-    let v = (m + ((1u32 << s) >> 1)) >> s;
-    if n < -17 {
-        0
-    } else {
-        v as i32
-    }
-}
-
 /// `logit8` of a row of stored values, with the common formats (a right
 /// shift of 1 to 62 bits, or a left shift of up to 20) in loops that vectorise.
 #[inline(always)]
@@ -130,7 +95,7 @@ fn alphas(f: &View<'_, i16>, y: usize, x: usize, out: &mut [i64; MAX_FUSED]) {
     let mut e = [0i64; MAX_FUSED];
     let mut sum = 0i64;
     for i in 0..m {
-        e[i] = exp_q8_lane(logit8(f.at(i, y, x), f.frac()) - mx) as i64;
+        e[i] = exp_q8(logit8(f.at(i, y, x), f.frac()) - mx) as i64;
         sum += e[i];
     }
     let inv = (1i64 << RECIP_ALPHA) / sum; // sum >= 2^16: the maximum's weight is 1
@@ -172,7 +137,7 @@ fn fusion_weights<const FLOAT_DIV: bool>(
         sum.fill(0);
         for i in 0..m {
             for ((l, &a), s) in lg[i * tw..(i + 1) * tw].iter_mut().zip(mx.iter()).zip(sum.iter_mut()) {
-                *l = exp_q8_lane((*l - a) as i32) as i64;
+                *l = exp_q8((*l - a) as i32) as i64;
                 *s += *l;
             }
         }
@@ -213,7 +178,7 @@ fn direct_window(
     let mut num = [0i64; MAX_CHANNELS];
     for yy in ylo..yhi {
         for xx in xlo..xhi {
-            let e = exp_q8_lane(logit8(imp.at(plane, yy, xx), imp.frac()) - m) as i64;
+            let e = exp_q8(logit8(imp.at(plane, yy, xx), imp.frac()) - m) as i64;
             den += e;
             for c in 0..ch {
                 num[c] += e * ld(rad.at(c, yy, xx)) as i64;
@@ -423,7 +388,7 @@ fn boxsum_body<const FLOAT_DIV: bool>(
                     e[b_hi..].fill(0);
                     logits_row(&imp.row(i, yy)[x_lo..x_lo + n], imp.frac(), &mut e[b_lo..b_hi]);
                     for v in e[b_lo..b_hi].iter_mut() {
-                        *v = exp_q8_lane((*v - shift) as i32) as i64;
+                        *v = exp_q8((*v - shift) as i32) as i64;
                     }
                     for q in 1..np {
                         let row = &mut v_rows[(q - 1) * plane + a * cols..(q - 1) * plane + (a + 1) * cols];
@@ -596,7 +561,7 @@ pub(crate) fn kernels(k: usize, logits: &View<'_, i16>, dst: &mut ViewMut<'_, i1
             }
             let mut den = 0i64;
             for j in 0..k * k {
-                e[j] = tap(j).map_or(0, |(sy, sx)| exp_q8_lane(logit8(logits.at(0, sy, sx), logits.frac()) - m) as i64);
+                e[j] = tap(j).map_or(0, |(sy, sx)| exp_q8(logit8(logits.at(0, sy, sx), logits.frac()) - m) as i64);
                 den += e[j];
             }
             let inv = (1i64 << 46) / den;
@@ -666,7 +631,7 @@ fn channel_body<const FLOAT_DIV: bool>(src: &View<'_, i16>, dst: &mut ViewMut<'_
             for c in 0..n {
                 logits_row(&src.row(c, y)[x0..x0 + cw], fi, &mut l[..cw]);
                 for ((d, &v), &m) in den[..cw].iter_mut().zip(&l[..cw]).zip(&mx[..cw]) {
-                    *d += exp_q8_lane((v - m) as i32) as i64;
+                    *d += exp_q8((v - m) as i32) as i64;
                 }
             }
             // den >= 2^16: the maximum's weight is 1. `l` takes the reciprocals.
@@ -680,12 +645,12 @@ fn channel_body<const FLOAT_DIV: bool>(src: &View<'_, i16>, dst: &mut ViewMut<'_
                 if (1..63).contains(&sh) {
                     let half = 1i64 << (sh - 1);
                     for (((o, &v), &m), &iv) in out.iter_mut().zip(&l[..cw]).zip(&mx[..cw]).zip(&inv[..cw]) {
-                        let e = exp_q8_lane((v - m) as i32) as i64;
+                        let e = exp_q8((v - m) as i32) as i64;
                         *o = ((e * iv + half) >> sh).clamp(-(QMAX as i64), QMAX as i64) as i16;
                     }
                 } else {
                     for (i, o) in out.iter_mut().enumerate() {
-                        let e = exp_q8_lane((l[i] - mx[i]) as i32) as i64;
+                        let e = exp_q8((l[i] - mx[i]) as i32) as i64;
                         *o = normalised(e, den[i], inv[i], fo);
                     }
                 }
@@ -700,12 +665,17 @@ mod tests {
     use super::*;
 
     #[test]
-    fn branch_free_exp_is_exp_q8_bit_for_bit() {
+    fn branch_free_exp_is_the_exp2_composition_bit_for_bit() {
+        // The composition exp_q8 replaced: exp2_q8 of x log2(e) rounded in i64.
+        let reference = |x: i32| {
+            let y = crate::fixed::shr_round(x as i64 * 23637, 14);
+            crate::fixed::exp2_q8(y.max(i32::MIN as i64) as i32)
+        };
         for x in -80_000..=300 {
-            assert_eq!(exp_q8_lane(x), crate::fixed::exp_q8(x), "x = {x}");
+            assert_eq!(exp_q8(x), reference(x), "x = {x}");
         }
         for x in [i32::MIN / 2, -(1 << 29), 1 << 28] {
-            assert_eq!(exp_q8_lane(x), crate::fixed::exp_q8(x), "x = {x}");
+            assert_eq!(exp_q8(x), reference(x), "x = {x}");
         }
     }
 

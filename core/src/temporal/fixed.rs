@@ -5,7 +5,7 @@
 //! and colour divide by the taps' weight sum through one reciprocal.
 
 use super::{TemporalInputs, TemporalParams};
-use crate::fixed::{div_round, ld, rescale, sat16, shr_round};
+use crate::fixed::{div_round, ld, mul_recip, rescale, sat16, shr_round};
 use crate::view::{View, ViewMut};
 
 const ONE: i64 = 1 << 14;
@@ -65,21 +65,6 @@ impl<'a> Test<'a> {
             s += d * d;
         }
         s < limit
-    }
-}
-
-/// `num / den` rounded to nearest, half away from zero, by a reciprocal
-/// `inv = floor(2^47 / den)` shared by the values of a pixel: `|num| <=
-/// 32767 den` keeps the product below 2^62, and with `den <= 2^15` the
-/// reciprocal's error moves the quotient by under 2^-17 (a tie exactly at a
-/// half may round the other way).
-#[inline(always)]
-fn mul_recip(num: i64, inv: i64) -> i64 {
-    let q = (num.abs() * inv + (1i64 << 46)) >> 47;
-    if num < 0 {
-        -q
-    } else {
-        q
     }
 }
 
@@ -162,9 +147,11 @@ pub(crate) fn accumulate(
                 hist += wt * at(&inp.prev_history, 0, py, px);
             }
             if wsum > 0 {
-                // wsum <= 2^14 + 4 (bilinear weights of one pixel).
+                // wsum <= 2^14 + 4 (bilinear weights of one pixel); the
+                // values are under 32767 wsum, so the products stay under 2^62,
+                // and the reciprocal's error moves a quotient by under 2^-17.
                 let inv = (1i64 << 47) / wsum;
-                let n = mul_recip(hist, inv).max(0); // Q.fh
+                let n = mul_recip(hist, inv, 47).max(0); // Q.fh
                 let alpha = div_round(ONE << fh, n + (1i64 << fh)).max(amin).min(ONE); // Q.14
                 for c in 0..ch {
                     let cur = at(&inp.color, c, y, x);
@@ -172,7 +159,7 @@ pub(crate) fn accumulate(
                     for &(py, px, wt) in taps {
                         prev += wt * at(&inp.prev_color, c, py, px);
                     }
-                    let pv = rescale(mul_recip(prev, inv), fpc, fc);
+                    let pv = rescale(mul_recip(prev, inv, 47), fpc, fc);
                     let v = shr_round(alpha * cur + (ONE - alpha) * pv, 14);
                     color.row_mut(c, yo)[x] = sat16(rescale(v, fc, fo));
                 }

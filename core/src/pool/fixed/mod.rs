@@ -41,6 +41,9 @@ struct Sh {
 }
 
 impl Sh {
+    /// No shift.
+    const ZERO: Sh = Sh { left: 0, half: 0, right: 0 };
+
     fn new(s: i32) -> Option<Sh> {
         if s > 0 && s < 63 {
             Some(Sh { left: 0, half: 1i64 << (s - 1), right: s as u32 })
@@ -100,9 +103,12 @@ pub(crate) fn reduce(
 fn reduce_body(op: Reduce, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>, y0: usize) {
     let (w, h) = (src.width(), src.height());
     let (fi, fo) = (src.frac() as i32, dst.frac() as i32);
-    let Some(sh) = Sh::new(fi - fo) else { return reduce_pixels(op, src, dst, y0) };
-    // Whole cells: both rows, columns 2 xc and 2 xc + 1.
-    let whole = w / 2;
+    // Whole cells (both rows, columns 2 xc and 2 xc + 1) in a loop that
+    // vectorises when the format shift fits `Sh`; cells cut by the edge, or
+    // every cell otherwise, by the pixel code.
+    let sh = Sh::new(fi - fo);
+    let whole = if sh.is_some() { w / 2 } else { 0 };
+    let sh = sh.unwrap_or(Sh::ZERO);
     for yo in 0..dst.height() {
         let yc = y0 + yo;
         for c in 0..src.channels() {
@@ -126,21 +132,6 @@ fn reduce_body(op: Reduce, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>, y0: 
             };
             for xc in from..out.len() {
                 out[xc] = sat16(rescale(cell(op, r0, r1, xc, w), fi, fo));
-            }
-        }
-    }
-}
-
-fn reduce_pixels(op: Reduce, src: &View<'_, i16>, dst: &mut ViewMut<'_, i16>, y0: usize) {
-    let (w, h) = (src.width(), src.height());
-    let (fi, fo) = (src.frac() as i32, dst.frac() as i32);
-    for yo in 0..dst.height() {
-        let yc = y0 + yo;
-        for c in 0..src.channels() {
-            let r0 = src.row(c, 2 * yc);
-            let r1 = (2 * yc + 1 < h).then(|| src.row(c, 2 * yc + 1));
-            for xc in 0..dst.width() {
-                dst.row_mut(c, yo)[xc] = sat16(rescale(cell(op, r0, r1, xc, w), fi, fo));
             }
         }
     }
@@ -209,11 +200,14 @@ fn composite_body(
     let (w, h) = (fine.width(), fine.height());
     let (ff, fc, fa, fo) = (fine.frac() as i32, coarse.frac() as i32, alpha.frac() as i32, dst.frac() as i32);
     let per_channel_alpha = alpha.channels() > 1;
-    let (Some(s_c), Some(s_a), Some(s_o)) = (Sh::new(fc - ff), Sh::new(fa), Sh::new(ff - fo)) else {
-        return composite_pixels(fine, coarse, alpha, dst, y0);
+    // Whole cells (columns below 2 (w / 2)) in chunks when every format shift
+    // fits `Sh`; the odd last column, or every column otherwise, by the pixel code.
+    let shifts = match (Sh::new(fc - ff), Sh::new(fa), Sh::new(ff - fo)) {
+        (Some(c), Some(a), Some(o)) => Some((c, a, o)),
+        _ => None,
     };
-    // Whole cells: columns below 2 (w / 2); the odd last column by the pixel code.
-    let whole = 2 * (w / 2);
+    let whole = if shifts.is_some() { 2 * (w / 2) } else { 0 };
+    let (s_c, s_a, s_o) = shifts.unwrap_or((Sh::ZERO, Sh::ZERO, Sh::ZERO));
     let mut d = [0i64; CHUNK / 2];
     for yo in 0..dst.height() {
         let y = y0 + yo;
@@ -257,34 +251,6 @@ fn composite_body(
                 let d = rescale(ld(crow[x / 2]) as i64, fc, ff) - cell(Reduce::Mean, r0, r1, x / 2, w);
                 let o = ld(f[x]) as i64 + shr_round(ld(a[x]) as i64 * d, fa);
                 out[x] = sat16(rescale(o, ff, fo));
-            }
-        }
-    }
-}
-
-fn composite_pixels(
-    fine: &View<'_, i16>,
-    coarse: &View<'_, i16>,
-    alpha: &View<'_, i16>,
-    dst: &mut ViewMut<'_, i16>,
-    y0: usize,
-) {
-    let (w, h) = (fine.width(), fine.height());
-    let (ff, fc, fa, fo) = (fine.frac() as i32, coarse.frac() as i32, alpha.frac() as i32, dst.frac() as i32);
-    let per_channel_alpha = alpha.channels() > 1;
-    for yo in 0..dst.height() {
-        let y = y0 + yo;
-        let yc = y / 2;
-        for c in 0..fine.channels() {
-            let r0 = fine.row(c, 2 * yc);
-            let r1 = (2 * yc + 1 < h).then(|| fine.row(c, 2 * yc + 1));
-            let f = fine.row(c, y);
-            let crow = coarse.row(c, yc);
-            let a = alpha.row(if per_channel_alpha { c } else { 0 }, y);
-            for x in 0..w {
-                let d = rescale(ld(crow[x / 2]) as i64, fc, ff) - cell(Reduce::Mean, r0, r1, x / 2, w);
-                let o = ld(f[x]) as i64 + shr_round(ld(a[x]) as i64 * d, fa);
-                dst.row_mut(c, yo)[x] = sat16(rescale(o, ff, fo));
             }
         }
     }

@@ -576,16 +576,8 @@ fn tile<S: FloatElement, A: Real, O: Ops<A>>(
                     add_marked(extra, tw, mrow, den, &mut acc[ot * tw..], th * tw);
                     t
                 };
-                if any_tiny {
-                    if last {
-                        tiny_fallback(inp, i, den, arow, ytop + ot, tx, &mut acc[ot * tw..], th * tw);
-                    } else {
-                        mark_tiny(den, mrow);
-                        any_left = true;
-                    }
-                } else if !last {
-                    mrow.fill(A::ZERO);
-                }
+                any_left |=
+                    after_pass(inp, i, any_tiny, last, den, arow, mrow, ytop + ot, tx, &mut acc[ot * tw..], th * tw);
             }
         }
     }
@@ -605,6 +597,42 @@ fn add_marked<A: Real>(extra: &[A], plane: usize, mask: &[A], den: &[A], acc: &m
                 *av += ev;
             }
         }
+    }
+}
+
+/// After a pass over one output row: on the last pass the windows still
+/// under `TINY` are computed one by one ([`tiny_fallback`]); before it they
+/// are marked in `mask` for the next pass (and the rest cleared). Returns
+/// whether any was marked.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn after_pass<S: FloatElement, A: Real>(
+    inp: &FusedInputs<'_, S>,
+    i: usize,
+    any_tiny: bool,
+    last: bool,
+    den: &[A],
+    alpha: &[A],
+    mask: &mut [A],
+    y: usize,
+    tx: usize,
+    acc: &mut [A],
+    acc_plane: usize,
+) -> bool {
+    match (any_tiny, last) {
+        (true, true) => {
+            tiny_fallback(inp, i, den, alpha, y, tx, acc, acc_plane);
+            false
+        }
+        (true, false) => {
+            mark_tiny(den, mask);
+            true
+        }
+        (false, false) => {
+            mask.fill(A::ZERO);
+            false
+        }
+        (false, true) => false,
     }
 }
 
@@ -723,16 +751,8 @@ fn sep_tile<S: FloatElement, A: Real, O: Ops<A> + SepOps<A>>(
                     add_marked(extra, tw, mrow, den, &mut acc[ot * tw..], th * tw);
                     t
                 };
-                if any_tiny {
-                    if last {
-                        tiny_fallback(inp, i, den, arow, ytop + ot, tx, &mut acc[ot * tw..], th * tw);
-                    } else {
-                        mark_tiny(den, mrow);
-                        any_left = true;
-                    }
-                } else if !last {
-                    mrow.fill(A::ZERO);
-                }
+                any_left |=
+                    after_pass(inp, i, any_tiny, last, den, arow, mrow, ytop + ot, tx, &mut acc[ot * tw..], th * tw);
             }
         }
     }
