@@ -11,6 +11,7 @@
 #   MODELS="wskp3 afn wskp6"   which models, in this order (default)
 #   STEPS_WSKP3=60000 STEPS_WSKP6=40000 STEPS_AFN=30000   the cosine schedule's length
 #   THREADS=2
+#   CLIP=0.5                   the gradient-norm clip (0: off; see docs/training.md)
 #   TRAIN=DIR VAL=DIR          other training / validation directories (default DATA/train, DATA/val)
 #   also: afn-ta-only, afn-1spp-only (AFN's ablation, 5000 steps each)
 # The training data is DATA/train (every complete sequence), the validation
@@ -30,7 +31,7 @@ VAL="${VAL:-$DATA/val}"
 [ -d "$TRAIN" ] || { echo "no $TRAIN: run bash tools/render-train.sh $DATA first" >&2; exit 1; }
 mkdir -p "$OUT"
 common=(--data "$TRAIN" --val "$VAL" --batch 8 --crop 128 --threads "$THREADS" --seed 1
-    --checkpoint-minutes 5 --lr-schedule cosine)
+    --checkpoint-minutes 5 --lr-schedule cosine --clip "${CLIP:-0.5}")
 for m in $MODELS; do
     case "$m" in
         wskp3) args=(--method wskp --layers 3 --steps "${STEPS_WSKP3:-60000}" --val-every 5000) ;;

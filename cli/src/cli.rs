@@ -552,6 +552,10 @@ struct TrainCli {
     /// Gradient norm clip (0: off)
     #[arg(long, value_name = "F", default_value = "0", value_parser = clip)]
     clip: f32,
+    /// WSKP: penalise importance and fusion logits beyond +-F nats (0: off), which keeps the fused
+    /// filter's windows within its fast paths as the network trains
+    #[arg(long, value_name = "F", default_value = "30", value_parser = clip)]
+    logit_bound: f32,
     /// Seed of the initialisation and of the crop sampling
     #[arg(long, value_name = "N", default_value = "1", value_parser = seed)]
     seed: u64,
@@ -567,7 +571,7 @@ struct TrainCli {
     /// Minutes between checkpoints
     #[arg(long, value_name = "F", default_value = "5", value_parser = minutes)]
     checkpoint_minutes: f64,
-    /// A CSV of step, seconds, loss and validation PSNR
+    /// A CSV of step, seconds, loss, learning rate, validation PSNR and gradient norm
     #[arg(long, value_name = "CSV")]
     log: Option<PathBuf>,
     /// AFN: which images the network filters (the single-input variants are the paper's ablation)
@@ -716,6 +720,7 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
             a.lr = t.lr;
             a.loss = t.loss;
             a.clip = t.clip;
+            a.logit_bound = t.logit_bound;
             a.seed = t.seed;
             if let Some(n) = t.threads {
                 a.threads = n;

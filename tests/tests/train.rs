@@ -215,7 +215,11 @@ fn wskp_gradient_matches_finite_differences_for_subsets_of_sizes() {
     let x = Img::random(wskp::CIN, s, s, 0.0, 1.0, 1).data;
     let data = Img::random(9, s, s, 0.05, 2.0, 2).data;
     let pool = Pool::new(2).unwrap();
-    for (sizes, outputs) in [("7", 1), ("3,9", 4), ("1,7", 2), ("1,3,9", 5)] {
+    // The last case bounds the logits at 0.05 nats, so that the penalty on
+    // those beyond it ([`wskp::logit_penalty`]) is in the step's loss.
+    for (sizes, outputs, bound) in
+        [("7", 1, 0.0), ("3,9", 4, 0.0), ("1,7", 2, 0.0), ("1,3,9", 5, 0.0), ("3,9", 4, 0.05)]
+    {
         let sizes = Sizes::parse(sizes).unwrap();
         let net = wskp::net_for(3, sizes).unwrap();
         assert_eq!(sizes.outputs(), outputs);
@@ -233,11 +237,22 @@ fn wskp_gradient_matches_finite_differences_for_subsets_of_sizes() {
             Ok(())
         };
         for isa in isas_under_test() {
-            let head =
-                |_: usize, _: &Nets<'_>, wss: &mut [Workspace]| wskp::head(&mut wss[0], sizes, Loss::RelMse, 1.0, isa);
+            let head = |_: usize, _: &Nets<'_>, wss: &mut [Workspace]| {
+                wskp::head(&mut wss[0], sizes, Loss::RelMse, 1.0, bound, isa)
+            };
             let mut tr = make(&params);
             tr.step(&pool, isa, &fill, &head, false).unwrap();
             let grad = tr.grad().to_vec();
+            if bound > 0.0 {
+                // The penalty is there: the same step without it differs.
+                let free = |_: usize, _: &Nets<'_>, wss: &mut [Workspace]| {
+                    wskp::head(&mut wss[0], sizes, Loss::RelMse, 1.0, 0.0, isa)
+                };
+                let mut t0 = make(&params);
+                t0.step(&pool, isa, &fill, &free, false).unwrap();
+                let moved = t0.grad().iter().zip(&grad).filter(|(a, b)| a != b).count();
+                assert!(moved * 2 > grad.len(), "{isa:?}: the penalty moved {moved} of {} gradients", grad.len());
+            }
             let loss_at = |p: &[f32]| make(p).step(&pool, isa, &fill, &head, false).unwrap().loss as f64;
             let scale = grad.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
             let (mut checked, mut kinks) = (0, Vec::new());

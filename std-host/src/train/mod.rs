@@ -58,6 +58,9 @@ pub struct TrainArgs {
     pub lr: f32,
     /// Gradient norm clip (0: none).
     pub clip: f32,
+    /// WSKP: the importance and fusion logits are penalised beyond
+    /// `±logit_bound` nats (0: no penalty; [`wskp::logit_penalty`]).
+    pub logit_bound: f32,
     /// The loss.
     pub loss: Loss,
     /// Seed of initialisation and sampling.
@@ -72,7 +75,7 @@ pub struct TrainArgs {
     pub checkpoint_minutes: f64,
     /// Steps between validations (0: only at the end).
     pub val_every: u64,
-    /// A CSV of (step, seconds, loss, validation PSNR) rows.
+    /// A CSV of (step, seconds, loss, learning rate, validation PSNR, gradient norm) rows.
     pub log: Option<PathBuf>,
     /// AFN: which images it filters.
     pub variant: afn::Variant,
@@ -135,6 +138,7 @@ impl Default for TrainArgs {
             crop: 128,
             lr: 1e-3,
             clip: 0.0,
+            logit_bound: 30.0,
             loss: Loss::RelMseN2n,
             seed: 1,
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
@@ -620,7 +624,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     let mut log = String::new();
     if let Some(l) = &a.log {
         if a.resume.is_none() || !l.exists() {
-            std::fs::write(l, "step,seconds,loss,lr,val_psnr\n").map_err(|e| HostError::write(l, e))?;
+            std::fs::write(l, "step,seconds,loss,lr,val_psnr,grad_norm\n").map_err(|e| HostError::write(l, e))?;
         }
     }
     let flush_log = |log: &mut String| -> Result<()> {
@@ -657,7 +661,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             Ok(())
         };
         let head = |_: usize, nets: &Nets<'_>, wss: &mut [Workspace]| match model {
-            Model::Wskp(_, s) => wskp::head(&mut wss[0], s, loss, scale, isa),
+            Model::Wskp(_, s) => wskp::head(&mut wss[0], s, loss, scale, a.logit_bound, isa),
             Model::Afn(v) => afn::head(nets, wss, loss, scale, true, v),
         };
         let st = tr.step(&pool, a.isa, &fill, &head, true)?;
@@ -695,7 +699,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         }
         let _ = std::fmt::Write::write_fmt(
             &mut log,
-            format_args!("{step},{secs:.2},{:.6},{:.3e},{vpsnr}\n", st.loss, tr.adam.lr),
+            format_args!("{step},{secs:.2},{:.6},{:.3e},{vpsnr},{:.4e}\n", st.loss, tr.adam.lr, st.grad_norm),
         );
         let rate = (step - first_step) as f64 / start.elapsed().as_secs_f64().max(1e-9);
         match &bar {
@@ -734,7 +738,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         a.out.display()
     );
     if let Some(vp) = vp {
-        let _ = std::fmt::Write::write_fmt(&mut log, format_args!("{step},{secs:.2},,,{vp:.3}\n"));
+        let _ = std::fmt::Write::write_fmt(&mut log, format_args!("{step},{secs:.2},,,{vp:.3},\n"));
     }
     flush_log(&mut log)?;
     Ok(())

@@ -229,10 +229,46 @@ pub fn crop_buffers(ws: &mut Workspace) {
     }
 }
 
+/// Weight of the penalty on logits beyond the bound ([`logit_penalty`]).
+pub const LOGIT_PENALTY: f32 = 0.01;
+
+/// The penalty `LOGIT_PENALTY * mean(max(0, |l| - bound)^2)` over
+/// `logits`, its gradient times `scale` added to `grad`; 0 and nothing
+/// added when `bound` is 0. A softmax does not change when its logits
+/// shift together, so this costs the model nothing it needs while the
+/// logits stay within `±bound`; it stops the ImportanceNet from spreading
+/// them without limit (a weight `e^-60` is already 0 in f32), which would
+/// leave the fused filter's windows more nats apart than its box sums'
+/// passes cover and send them down the window-by-window path.
+pub fn logit_penalty(logits: &[f32], grad: &mut [f32], bound: f32, scale: f32) -> f32 {
+    if bound <= 0.0 || logits.is_empty() {
+        return 0.0;
+    }
+    let k = LOGIT_PENALTY / logits.len() as f32;
+    let mut total = 0.0f64;
+    for (g, &l) in grad.iter_mut().zip(logits) {
+        let over = l.abs() - bound;
+        if over > 0.0 {
+            total += (over * over) as f64;
+            *g += scale * k * 2.0 * over * l.signum();
+        }
+    }
+    (total * k as f64) as f32
+}
+
 /// The training head of a crop: the fused filter on the network's output,
 /// the loss against the reference, and the output's gradient (of the batch
-/// mean: `scale` = 1 / batch).
-pub fn head(ws: &mut Workspace, sizes: Sizes, loss: Loss, scale: f32, isa: mcdenoise_core::Isa) -> Result<f32> {
+/// mean: `scale` = 1 / batch). With `bound` > 0 the importance and fusion
+/// logits beyond `±bound` are penalised ([`logit_penalty`]; its share is
+/// in the loss returned).
+pub fn head(
+    ws: &mut Workspace,
+    sizes: Sizes,
+    loss: Loss,
+    scale: f32,
+    bound: f32,
+    isa: mcdenoise_core::Isa,
+) -> Result<f32> {
     let (w, h) = ws.size();
     let n = w * h;
     let (logits, dy, aux) = ws.head_parts();
@@ -296,6 +332,8 @@ pub fn head(ws: &mut Workspace, sizes: Sizes, loss: Loss, scale: f32, isa: mcden
         radiance: &mut ViewMut::new(drad, 3, w, h)?,
     };
     sgrad::fused_filter_grad(isa, &inp, &gv, grads, 0, gs)?;
+    let nl = if m > 1 { 2 * m * n } else { n };
+    let l = l + logit_penalty(&logits[..nl], &mut dy[..nl], bound, scale);
     if sizes.keep() {
         for (r, &o) in drad.iter_mut().zip(out.iter()) {
             *r += o;
@@ -566,5 +604,42 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
             t.time("fallback", || crate::methods::fallback::to_input(ctx, &mut out, colour, a, w, h, exposure))?;
         }
         Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The penalty against an f64 oracle of its definition, and its
+    /// gradient against central differences of that oracle; 0 within the
+    /// bound, and nothing at all with the bound 0.
+    #[test]
+    fn logit_penalty_matches_its_definition_and_finite_differences() {
+        let logits = [-80.0f32, -31.5, -30.0, -2.0, 0.0, 12.0, 29.99, 30.5, 47.0, 200.0];
+        let oracle = |v: &[f64], b: f64| -> f64 {
+            v.iter().map(|&l| (l.abs() - b).max(0.0).powi(2)).sum::<f64>() * LOGIT_PENALTY as f64 / v.len() as f64
+        };
+        let v: Vec<f64> = logits.iter().map(|&l| l as f64).collect();
+        let mut g = [0.5f32; 10];
+        let p = logit_penalty(&logits, &mut g, 30.0, 0.25);
+        let want = oracle(&v, 30.0);
+        assert!((p as f64 - want).abs() <= 1e-6 * want, "{p} vs {want}");
+        for i in 0..logits.len() {
+            let h = 1e-3;
+            let (mut a, mut b) = (v.clone(), v.clone());
+            a[i] += h;
+            b[i] -= h;
+            let fd = 0.25 * (oracle(&a, 30.0) - oracle(&b, 30.0)) / (2.0 * h);
+            // The gradient is added to what was there (0.5).
+            let got = g[i] as f64 - 0.5;
+            assert!((got - fd).abs() <= 1e-6 + 1e-4 * fd.abs(), "logit {}: {got} vs {fd}", logits[i]);
+        }
+        for i in 2..7 {
+            assert_eq!(g[i], 0.5, "logit {} is within the bound", logits[i]);
+        }
+        let mut g0 = [0.5f32; 10];
+        assert_eq!(logit_penalty(&logits, &mut g0, 0.0, 1.0), 0.0);
+        assert_eq!(g0, [0.5f32; 10]);
     }
 }
