@@ -50,6 +50,19 @@ pub enum Command {
     },
     /// The precision report.
     Precision(mcdenoise_kit::report::ReportArgs),
+    /// The precision report per method, on a rendered sequence.
+    PrecisionMethods {
+        /// Which methods (names of [`crate::commands::REPORT_METHODS`]).
+        methods: Vec<String>,
+        /// The frames.
+        sequence: PathBuf,
+        /// Their references (default: `SEQUENCE/ref`).
+        reference: Option<PathBuf>,
+        /// Worker threads.
+        threads: usize,
+        /// The CSV to write.
+        csv: PathBuf,
+    },
     /// Train a learned method.
     Train(mcdenoise::train::TrainArgs),
     /// Print a shell completion script.
@@ -280,7 +293,8 @@ enum Sub {
     /// What the loader finds in an EXR file (parts, channels, windows, buffers) and what each method
     /// will build from it
     Inspect(InspectCli),
-    /// Time and error (against the f64 oracle) of every core operator in every precision and instruction set
+    /// Time and error (against the f64 oracle) of every core operator in every precision and instruction
+    /// set; with --methods, each method's time and PSNR in every precision on a rendered sequence
     Precision(PrecisionCli),
     /// Print a completion script for a shell
     Completions {
@@ -620,12 +634,25 @@ struct PrecisionCli {
     #[arg(long, value_name = "OP", value_delimiter = ',',
           value_parser = clap::builder::PossibleValuesParser::new(mcdenoise_kit::registry::names()))]
     only: Vec<String>,
-    /// The CSV to write
-    #[arg(long, value_name = "FILE", default_value = "mcdenoise-out/precision.csv")]
-    csv: PathBuf,
-    /// The SVG plot to write
+    /// The CSV to write [default: mcdenoise-out/precision.csv; with --methods
+    /// mcdenoise-out/precision-methods.csv]
+    #[arg(long, value_name = "FILE")]
+    csv: Option<PathBuf>,
+    /// The SVG plot to write (per operator)
     #[arg(long, value_name = "FILE", default_value = "mcdenoise-out/precision.svg")]
     svg: PathBuf,
+    /// Per method instead of per operator: run these methods (comma-separated) on --sequence in f32,
+    /// f16 and fixed point, and report each one's ms/frame against PSNR with its Pareto front
+    #[arg(long, value_name = "M", value_delimiter = ',', requires = "sequence",
+          conflicts_with_all = ["frame", "only"],
+          value_parser = clap::builder::PossibleValuesParser::new(crate::commands::REPORT_METHODS))]
+    methods: Vec<String>,
+    /// The frames of the per-method report (a directory of EXR frames)
+    #[arg(long, value_name = "DIR", requires = "methods")]
+    sequence: Option<PathBuf>,
+    /// The references of --sequence's frames, by file name [default: SEQUENCE/ref]
+    #[arg(long, value_name = "DIR", requires = "methods")]
+    reference: Option<PathBuf>,
 }
 
 /// The whole command-line definition (for help, completions and the man page).
@@ -743,9 +770,16 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
             file: i.file,
             selection: mcdenoise::io::names::Selection { part: i.part, layer: i.layer },
         },
+        Some(Sub::Precision(p)) if !p.methods.is_empty() => Command::PrecisionMethods {
+            methods: p.methods,
+            sequence: p.sequence.expect("clap requires --sequence with --methods"),
+            reference: p.reference,
+            threads: p.threads,
+            csv: p.csv.unwrap_or_else(|| PathBuf::from("mcdenoise-out/precision-methods.csv")),
+        },
         Some(Sub::Precision(p)) => Command::Precision(mcdenoise_kit::report::ReportArgs {
             frame: p.frame,
-            csv: p.csv,
+            csv: p.csv.unwrap_or_else(|| PathBuf::from("mcdenoise-out/precision.csv")),
             svg: p.svg,
             threads: p.threads,
             width: p.size.0,

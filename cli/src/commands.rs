@@ -476,3 +476,182 @@ pub fn demo(settings: &Settings) -> Result<()> {
     }
     Ok(())
 }
+
+/// The methods of the per-method precision report, by name (WSKP with each
+/// bundled ImportanceNet).
+pub const REPORT_METHODS: [&str; 8] = ["none", "ta", "atrous", "sure-atrous", "wskp-3", "wskp-6", "afn", "cross"];
+
+/// A method of the report by name: the kind and its network layers.
+fn report_method(name: &str) -> Result<(MethodKind, usize)> {
+    match name {
+        "wskp-3" => Ok((MethodKind::Wskp, 3)),
+        "wskp-6" => Ok((MethodKind::Wskp, 6)),
+        _ => MethodKind::ALL
+            .into_iter()
+            .find(|m| m.name() == name)
+            .map(|m| (m, 6))
+            .ok_or_else(|| HostError::Usage(format!("--methods: unknown method {name:?}"))),
+    }
+}
+
+/// One row of the per-method precision report.
+struct MethodRow {
+    method: String,
+    precision: &'static str,
+    wall_ms: f64,
+    kernel_ms: f64,
+    psnr: f64,
+    relmse: f64,
+    /// Per frame PSNR (for the loss against f32).
+    frames: Vec<f64>,
+    /// The largest per-frame PSNR loss against the method's f32 run.
+    worst_loss: Option<f64>,
+    pareto: bool,
+}
+
+/// Whether row `i` of `rows` is on its method's Pareto front of wall time
+/// against PSNR: no other row of the method is at least as fast and at
+/// least as accurate, and better in one.
+fn on_front(rows: &[MethodRow], i: usize) -> bool {
+    let r = &rows[i];
+    !rows.iter().enumerate().any(|(j, o)| {
+        j != i
+            && o.method == r.method
+            && o.wall_ms <= r.wall_ms
+            && o.psnr >= r.psnr
+            && (o.wall_ms < r.wall_ms || o.psnr > r.psnr)
+    })
+}
+
+/// `mcdenoise precision --methods ...`: each method run on `sequence` in
+/// f32, f16 and fixed point (outputs under `mcdenoise-out/precision/`),
+/// scored against the references; a table of wall and kernel time per
+/// frame, mean PSNR and relMSE, the largest per-frame loss against f32 and
+/// each method's Pareto front, and the same as a CSV.
+pub fn precision_methods(
+    methods: &[String],
+    sequence: &Path,
+    reference: Option<&Path>,
+    threads: usize,
+    csv: &Path,
+) -> Result<()> {
+    use mcdenoise::runtime::precision::PrecisionKind;
+    let files = list_inputs(&[sequence.to_path_buf()])?;
+    let refdir = reference.map_or_else(|| sequence.join("ref"), Path::to_path_buf);
+    if !refdir.is_dir() {
+        return Err(HostError::Usage(format!(
+            "{}: no such directory (the references of --sequence's frames, by file name: --reference DIR, \
+             by default SEQUENCE/ref)",
+            refdir.display()
+        )));
+    }
+    let out_root = PathBuf::from("mcdenoise-out").join("precision");
+    let base = Settings { threads, ..Settings::default() };
+    println!("{} frames of {} ({} threads, {})", files.len(), sequence.display(), threads, base.isa.name());
+    println!(
+        "{:<12} {:<9} {:>10} {:>10} {:>9} {:>9} {:>10}  Pareto",
+        "method", "precision", "wall ms", "kernel ms", "PSNR dB", "relMSE", "vs f32 dB"
+    );
+    let mut rows: Vec<MethodRow> = Vec::new();
+    // One untimed run first, so that the first timed one does not pay for
+    // the thread pool's start and the first touch of the memory.
+    if let Some(name) = methods.first() {
+        let (kind, layers) = report_method(name)?;
+        let opts = SequenceOptions { quiet: true, ..SequenceOptions::default() };
+        let outdir = out_root.join("warm-up");
+        denoise_sequence(
+            kind,
+            &Settings { layers, ..base.clone() },
+            &[sequence.to_path_buf()],
+            &outdir,
+            &opts,
+            |_, _, _| {},
+        )?;
+        let _ = std::fs::remove_dir_all(&outdir);
+    }
+    for name in methods {
+        let (kind, layers) = report_method(name)?;
+        let first = rows.len();
+        for precision in [PrecisionKind::F32, PrecisionKind::F16, PrecisionKind::Fixed] {
+            let settings = Settings { layers, precision, ..base.clone() };
+            let outdir = out_root.join(format!("{name}-{}", precision.name()));
+            let mut scores = Vec::new();
+            let mut err = None;
+            let opts = SequenceOptions { quiet: true, ..SequenceOptions::default() };
+            let t0 = Instant::now();
+            let rep = denoise_sequence(kind, &settings, &[sequence.to_path_buf()], &outdir, &opts, |i, out, f| {
+                let r = refdir.join(files[i].file_name().expect("a file has a name"));
+                match load_color(&r) {
+                    Ok(rf) if (rf.width, rf.height) == (f.width, f.height) => scores.push(metrics::score(
+                        out,
+                        rf.get(mcdenoise::io::frame::Buffer::Color).expect("colour"),
+                        f.width,
+                        f.height,
+                    )),
+                    Ok(_) => {
+                        err.get_or_insert(HostError::bad(&r, "reference size differs from the frame"));
+                    }
+                    Err(e) => {
+                        err.get_or_insert(e);
+                    }
+                }
+            })?;
+            let wall = t0.elapsed().as_secs_f64();
+            if let Some(e) = err {
+                return Err(e);
+            }
+            let n = rep.frames.max(1) as f64;
+            let s = mean_scores(&scores);
+            let frames: Vec<f64> = scores.iter().map(|s| s.psnr).collect();
+            let worst_loss = (precision != PrecisionKind::F32)
+                .then(|| rows[first].frames.iter().zip(&frames).map(|(a, b)| a - b).fold(f64::NEG_INFINITY, f64::max));
+            rows.push(MethodRow {
+                method: name.clone(),
+                precision: precision.name(),
+                wall_ms: wall * 1e3 / n,
+                kernel_ms: ms(rep.timings.total()) / n,
+                psnr: s.psnr,
+                relmse: s.relmse,
+                frames,
+                worst_loss,
+                pareto: false,
+            });
+        }
+        for i in first..rows.len() {
+            rows[i].pareto = on_front(&rows, i);
+            let r = &rows[i];
+            println!(
+                "{:<12} {:<9} {:>10.1} {:>10.1} {:>9.3} {:>9.5} {:>10}  {}",
+                r.method,
+                r.precision,
+                r.wall_ms,
+                r.kernel_ms,
+                r.psnr,
+                r.relmse,
+                r.worst_loss.map_or("".into(), |v| format!("{:+.2}", -v)),
+                if r.pareto { "*" } else { "" }
+            );
+        }
+    }
+    let mut text = String::from("method,precision,wall_ms,kernel_ms,psnr,relmse,worst_frame_vs_f32_db,pareto\n");
+    for r in &rows {
+        text.push_str(&format!(
+            "{},{},{:.3},{:.3},{:.4},{:.6},{},{}\n",
+            r.method,
+            r.precision,
+            r.wall_ms,
+            r.kernel_ms,
+            r.psnr,
+            r.relmse,
+            r.worst_loss.map_or(String::new(), |v| format!("{:.4}", -v)),
+            r.pareto as u8
+        ));
+    }
+    if let Some(d) = csv.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(d).map_err(|e| HostError::write(d, e))?;
+    }
+    std::fs::write(csv, text).map_err(|e| HostError::write(csv, e))?;
+    println!("wall: reading, denoising and writing, per frame; vs f32: the worst frame's PSNR against f32's; *: on the method's Pareto front of wall time against PSNR");
+    println!("outputs: {}/<method>-<precision>/; table: {}", out_root.display(), csv.display());
+    Ok(())
+}

@@ -56,6 +56,9 @@ fn main() -> ExitCode {
         Ok(Command::Score { reference, output, json }) => run::score_cmd(&reference, &output, json),
         Ok(Command::Inspect { file, selection }) => run::inspect_cmd(&file, &selection),
         Ok(Command::Precision(a)) => mcdenoise_kit::report::run(&a).map(|_| ()),
+        Ok(Command::PrecisionMethods { methods, sequence, reference, threads, csv }) => {
+            run::precision_methods(&methods, &sequence, reference.as_deref(), threads, &csv)
+        }
         Ok(Command::Train(a)) => mcdenoise::train::run(&a),
         Err(e) => Err(e),
     };

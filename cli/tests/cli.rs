@@ -565,3 +565,61 @@ fn parse_is_a_function_of_the_arguments() {
     assert!(matches!(parse(args(&["--help"])), Ok(Command::Help(h)) if h.contains("Usage: mcdenoise")));
     assert!(matches!(parse(args(&["completions", "zsh"])), Ok(Command::Completions(_))));
 }
+
+/// `precision --methods` on the bundled sample: a row per method and
+/// precision; each row's PSNR is what `mcdenoise score` gives the outputs
+/// it wrote; a reduced precision's worst frame loses at least its mean
+/// loss against f32; each method's fastest row is on its Pareto front.
+#[test]
+fn precision_report_per_method() {
+    let t = tempfile::tempdir().unwrap();
+    let sample = Path::new(env!("CARGO_MANIFEST_DIR")).join("../samples");
+    let out = bin()
+        .current_dir(t.path())
+        .args(["precision", "--methods", "none,atrous", "--threads", "2", "--sequence"])
+        .arg(&sample)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let csv = std::fs::read_to_string(t.path().join("mcdenoise-out/precision-methods.csv")).unwrap();
+    let rows: Vec<Vec<String>> = csv.lines().skip(1).map(|l| l.split(',').map(str::to_string).collect()).collect();
+    let want = ["none f32", "none f16", "none fixed", "atrous f32", "atrous f16", "atrous fixed"];
+    assert_eq!(rows.iter().map(|r| format!("{} {}", r[0], r[1])).collect::<Vec<_>>(), want);
+    let num = |s: &str| s.parse::<f64>().unwrap();
+    for method in ["none", "atrous"] {
+        let mine: Vec<&Vec<String>> = rows.iter().filter(|r| r[0] == method).collect();
+        let f32_psnr = num(&mine[0][4]);
+        assert!(mine[0][6].is_empty(), "f32 has no loss against itself");
+        for r in &mine {
+            let dir = t.path().join("mcdenoise-out/precision").join(format!("{}-{}", r[0], r[1]));
+            let s =
+                bin().arg("score").arg("--reference").arg(sample.join("ref")).arg(&dir).arg("--json").output().unwrap();
+            let text = String::from_utf8_lossy(&s.stdout);
+            let mean = text.split("\"mean\":{\"file\":\"mean\",\"psnr\":").nth(1).expect("a mean");
+            let psnr = num(mean.split(',').next().unwrap());
+            assert!((psnr - num(&r[4])).abs() < 1e-3, "{} {}: report {} vs score {psnr}", r[0], r[1], r[4]);
+            if r[1] != "f32" {
+                // The column is the worst frame against f32 (this minus f32).
+                assert!(-num(&r[6]) >= f32_psnr - num(&r[4]) - 1e-3, "{r:?}: worst frame under the mean loss");
+            }
+        }
+        let fastest = mine.iter().min_by(|a, b| num(&a[2]).total_cmp(&num(&b[2]))).unwrap();
+        assert_eq!(fastest[7], "1", "{method}: the fastest row is on the front: {mine:?}");
+    }
+}
+
+/// `precision --methods` without references: one line naming the directory.
+#[test]
+fn precision_report_without_references() {
+    let t = tempfile::tempdir().unwrap();
+    let sample = Path::new(env!("CARGO_MANIFEST_DIR")).join("../samples");
+    let out = bin()
+        .current_dir(t.path())
+        .args(["precision", "--methods", "none", "--sequence"])
+        .arg(&sample)
+        .arg("--reference")
+        .arg(t.path().join("nowhere"))
+        .output()
+        .unwrap();
+    assert_fails(&out, 2, "nowhere");
+}
