@@ -548,9 +548,10 @@ struct TrainCli {
     /// Adam's learning rate
     #[arg(long, value_name = "F", default_value = "1e-3", value_parser = learning_rate)]
     lr: f32,
-    /// The loss (relmse-n2n: relMSE normalised by the output with its gradient stopped, for noisy
-    /// targets such as 128-spp renders)
-    #[arg(long, value_enum, default_value_t = Loss::RelMseN2n)]
+    /// The loss (l1-log: L1 of sign(v) ln(1+|v|), robust to the fireflies of noisy targets and of
+    /// the input; relmse-n2n: relMSE normalised by the output with its gradient stopped, unbiased
+    /// for noisy targets such as 128-spp renders but lenient with fireflies left in the output)
+    #[arg(long, value_enum, default_value_t = Loss::L1Log)]
     loss: Loss,
     /// The learning rate's schedule over --steps (cosine: warm-up, then a cosine down to lr/100)
     #[arg(long, value_enum, default_value_t = mcdenoise::train::Schedule::Cosine)]

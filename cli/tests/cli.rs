@@ -377,7 +377,7 @@ fn every_command_has_help() {
                 "--json",
             ][..],
         ),
-        ("train", &["[default: relmse-n2n]", "relmse", "1spp-only", "[default: 128]"][..]),
+        ("train", &["[default: l1-log]", "relmse-n2n", "1spp-only", "[default: 128]"][..]),
         ("score", &["--reference <REF>", "<OUT>"][..]),
         ("precision", &["[default: 1280x720]", "--only"][..]),
         ("completions", &["bash", "zsh", "fish"][..]),

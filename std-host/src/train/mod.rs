@@ -139,7 +139,7 @@ impl Default for TrainArgs {
             lr: 1e-3,
             clip: 0.0,
             logit_bound: 30.0,
-            loss: Loss::RelMseN2n,
+            loss: Loss::L1Log,
             seed: 1,
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
             isa: Isa::detect(),
