@@ -41,7 +41,9 @@ fn main() {
         Ok(())
     };
     let head = |_: usize, _: &Nets<'_>, wss: &mut [Workspace]| {
-        wskp::head(&mut wss[0], wskp::Sizes::ALL, Loss::Smape, 1.0 / batch as f32, isa)
+        // The logit bound `mcdenoise train` uses by default.
+        let bound = mcdenoise::train::TrainArgs::default().logit_bound;
+        wskp::head(&mut wss[0], wskp::Sizes::ALL, Loss::Smape, 1.0 / batch as f32, bound, isa)
     };
     let mut times = Vec::new();
     for _ in 0..reps + 2 {
