@@ -239,6 +239,17 @@ fn load_color(p: &Path) -> Result<Frame> {
     Frame::load(p, &Limits::default())
 }
 
+/// Scores `out`, the output of frame `f` read from `file`, against the
+/// reference of the same file name in `refdir`.
+fn score_frame(refdir: &Path, file: &Path, out: &[f32], f: &Frame) -> Result<Scores> {
+    let r = refdir.join(file.file_name().expect("a file has a name"));
+    let rf = load_color(&r)?;
+    if (rf.width, rf.height) != (f.width, f.height) {
+        return Err(HostError::bad(&r, "reference size differs from the frame"));
+    }
+    Ok(metrics::score(out, rf.get(mcdenoise::io::frame::Buffer::Color).expect("colour"), f.width, f.height))
+}
+
 /// Scores one file against one reference.
 pub fn score_files(out: &Path, reference: &Path) -> Result<Scores> {
     let o = load_color(out)?;
@@ -412,11 +423,9 @@ pub fn demo(settings: &Settings) -> Result<()> {
     let mut sheet: Vec<(String, Vec<f32>)> = Vec::new();
     let mut failed = Vec::new();
     // WSKP runs twice, with each bundled ImportanceNet.
-    let runs = MethodKind::ALL.into_iter().flat_map(|m| match m {
-        MethodKind::Wskp => vec![(m, 3, "wskp-3"), (m, 6, "wskp-6")],
-        _ => vec![(m, settings.layers, m.name())],
-    });
-    for (m, layers, name) in runs {
+    for name in REPORT_METHODS {
+        let (m, layers) = report_method(name)?;
+        let layers = if m == MethodKind::Wskp { layers } else { settings.layers };
         let settings = &Settings { layers, ..settings.clone() };
         let outdir = out_root.join(name);
         let mut scores = Vec::new();
@@ -427,15 +436,8 @@ pub fn demo(settings: &Settings) -> Result<()> {
             if i == last {
                 shown = Some(out.to_vec());
             }
-            let r = dir.join("ref").join(files[i].file_name().expect("file"));
-            match load_color(&r) {
-                Ok(rf) if (rf.width, rf.height) == (f.width, f.height) => scores.push(metrics::score(
-                    out,
-                    rf.get(mcdenoise::io::frame::Buffer::Color).expect("colour"),
-                    f.width,
-                    f.height,
-                )),
-                Ok(_) => err = Some(HostError::bad(&r, "reference size differs from the frame")),
+            match score_frame(&dir.join("ref"), &files[i], out, f) {
+                Ok(s) => scores.push(s),
                 Err(e) => err = Some(e),
             }
         });
@@ -477,8 +479,8 @@ pub fn demo(settings: &Settings) -> Result<()> {
     Ok(())
 }
 
-/// The methods of the per-method precision report, by name (WSKP with each
-/// bundled ImportanceNet).
+/// The methods of the demo and of the per-method precision report, by name
+/// (WSKP with each bundled ImportanceNet), in [`MethodKind::ALL`]'s order.
 pub const REPORT_METHODS: [&str; 8] = ["none", "ta", "atrous", "sure-atrous", "wskp-3", "wskp-6", "afn", "cross"];
 
 /// A method of the report by name: the kind and its network layers.
@@ -580,17 +582,8 @@ pub fn precision_methods(
             let opts = SequenceOptions { quiet: true, ..SequenceOptions::default() };
             let t0 = Instant::now();
             let rep = denoise_sequence(kind, &settings, &[sequence.to_path_buf()], &outdir, &opts, |i, out, f| {
-                let r = refdir.join(files[i].file_name().expect("a file has a name"));
-                match load_color(&r) {
-                    Ok(rf) if (rf.width, rf.height) == (f.width, f.height) => scores.push(metrics::score(
-                        out,
-                        rf.get(mcdenoise::io::frame::Buffer::Color).expect("colour"),
-                        f.width,
-                        f.height,
-                    )),
-                    Ok(_) => {
-                        err.get_or_insert(HostError::bad(&r, "reference size differs from the frame"));
-                    }
+                match score_frame(&refdir, &files[i], out, f) {
+                    Ok(s) => scores.push(s),
                     Err(e) => {
                         err.get_or_insert(e);
                     }

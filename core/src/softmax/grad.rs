@@ -366,6 +366,39 @@ fn box_row(src: &[f32], ax0: usize, dst: &mut [f32], bx0: usize, r: usize, w: us
     }
 }
 
+/// The vertical half of [`box_row`]: for each of `planes` planes (`cap`
+/// apart) and each row `y` of `ys`, `dst` row `y - ys.start` (`n` wide) is
+/// the sum of `src` rows `yy - ay0` for `yy` within radius `r` of `y`,
+/// clipped to `[0, h)`, added in ascending row order.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn box_col(
+    src: &[f32],
+    ay0: usize,
+    dst: &mut [f32],
+    ys: core::ops::Range<usize>,
+    n: usize,
+    planes: usize,
+    cap: usize,
+    r: usize,
+    h: usize,
+) {
+    for y in ys.clone() {
+        let (lo, hi) = (y.saturating_sub(r), (y + r + 1).min(h));
+        let o = (y - ys.start) * n;
+        for pl in 0..planes {
+            let d = &mut dst[pl * cap + o..pl * cap + o + n];
+            d.fill(0.0);
+            for yy in lo..hi {
+                let so = pl * cap + (yy - ay0) * n;
+                for (d, &v) in d.iter_mut().zip(&src[so..so + n]) {
+                    *d += v;
+                }
+            }
+        }
+    }
+}
+
 /// One tile's gradients for its rows `q` (inside the band starting at `y0`).
 #[inline(always)]
 fn tile_grad(
@@ -485,20 +518,7 @@ fn tile_grad(
                     box_row(prod, er.x0, &mut hsum[(1 + ch) * cap + ho..(1 + ch) * cap + ho + pw], p.x0, r, w);
                 }
             }
-            for y in p.y0..p.y1 {
-                let (lo, hi) = (y.saturating_sub(r), (y + r + 1).min(h));
-                let o = (y - p.y0) * pw;
-                for pl in 0..=c {
-                    let dst = &mut dn[pl * cap + o..pl * cap + o + pw];
-                    dst.fill(0.0);
-                    for yy in lo..hi {
-                        let so = pl * cap + (yy - er.y0) * pw;
-                        for (d, &v) in dst.iter_mut().zip(&hsum[so..so + pw]) {
-                            *d += v;
-                        }
-                    }
-                }
-            }
+            box_col(hsum, er.y0, dn, p.y0..p.y1, pw, c + 1, cap, r, h);
             // R, u = g / D', v = sum_c u_c R_c over p for the windows this
             // pass takes; the others get u = v = 0 (and keep their R).
             any_fallback = false;
@@ -542,20 +562,7 @@ fn tile_grad(
                     box_row(src, p.x0, dst, q.x0, r, w);
                 }
             }
-            for y in q.y0..q.y1 {
-                let (lo, hi) = (y.saturating_sub(r), (y + r + 1).min(h));
-                let o = (y - q.y0) * qw;
-                for pl in 0..=c {
-                    let dst = &mut uvs[pl * cap + o..pl * cap + o + qw];
-                    dst.fill(0.0);
-                    for yy in lo..hi {
-                        let so = pl * cap + (yy - p.y0) * qw;
-                        for (d, &v) in dst.iter_mut().zip(&uvh[so..so + qw]) {
-                            *d += v;
-                        }
-                    }
-                }
-            }
+            box_col(uvh, p.y0, uvs, q.y0..q.y1, qw, c + 1, cap, r, h);
             // dI and dc over q (pass 0 writes dI, later passes add to it).
             for y in q.y0..q.y1 {
                 let o = (y - q.y0) * qw;
