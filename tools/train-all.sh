@@ -13,6 +13,8 @@
 #   THREADS=2
 #   CLIP=0.5                   the gradient-norm clip (0: off; see docs/training.md)
 #   LOSS=l1-log                the loss (mcdenoise train --loss)
+#   TA_CLAMP=1                 the accumulation's history clamp (mcdenoise train --ta-clamp; 0: off,
+#                              as the weights of before it: resume their checkpoints with 0)
 #   TRAIN=DIR VAL=DIR          other training / validation directories (default DATA/train, DATA/val)
 #   also: afn-ta-only, afn-1spp-only (AFN's ablation, 5000 steps each)
 # The training data is DATA/train (every complete sequence), the validation
@@ -32,7 +34,8 @@ VAL="${VAL:-$DATA/val}"
 [ -d "$TRAIN" ] || { echo "no $TRAIN: run bash tools/render-train.sh $DATA first" >&2; exit 1; }
 mkdir -p "$OUT"
 common=(--data "$TRAIN" --val "$VAL" --batch 8 --crop 128 --threads "$THREADS" --seed 1
-    --checkpoint-minutes 5 --lr-schedule cosine --clip "${CLIP:-0.5}" --loss "${LOSS:-l1-log}")
+    --checkpoint-minutes 5 --lr-schedule cosine --clip "${CLIP:-0.5}" --loss "${LOSS:-l1-log}"
+    --ta-clamp "${TA_CLAMP:-1}")
 for m in $MODELS; do
     case "$m" in
         wskp3) args=(--method wskp --layers 3 --steps "${STEPS_WSKP3:-60000}" --val-every 5000) ;;

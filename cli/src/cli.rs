@@ -329,6 +329,11 @@ struct SettingsCli {
     /// filtering (0: off) [default: 16 with B.*, 6 with one estimate]
     #[arg(long, value_name = "K", value_parser = firefly)]
     firefly_clamp: Option<f32>,
+    /// Temporal accumulation (ta, WSKP, AFN): clamp the reprojected history to the frame's 5x5
+    /// mean +- K standard deviations, so that a light that moved is not dragged along (0: off)
+    /// [default: 1; for WSKP and AFN the value their weights were trained with, if they say]
+    #[arg(long, value_name = "K", value_parser = firefly)]
+    ta_clamp: Option<f32>,
     /// WSKP: ImportanceNet layers (3 or 6) [default: the --weights file's, else 6]
     #[arg(long, value_name = "N", value_parser = layers, help_heading = "Learned methods")]
     layers: Option<usize>,
@@ -380,6 +385,7 @@ impl SettingsCli {
         }
         s.phi_color = self.phi_color;
         s.firefly_clamp = self.firefly_clamp;
+        s.ta_clamp = self.ta_clamp;
         s.layers = self.layers.unwrap_or_else(|| layers_of(self.weights.as_deref()));
         s.weights = self.weights;
         s.seed = self.seed;
@@ -571,6 +577,10 @@ struct TrainCli {
     /// filter's windows within its fast paths as the network trains
     #[arg(long, value_name = "F", default_value = "30", value_parser = clip)]
     logit_bound: f32,
+    /// The temporal accumulation's history clamp the inputs are made with, in standard deviations
+    /// (0: off); recorded in the weights, which denoise with it
+    #[arg(long, value_name = "K", default_value_t = mcdenoise::methods::TA_CLAMP, value_parser = firefly)]
+    ta_clamp: f32,
     /// Seed of the initialisation and of the crop sampling
     #[arg(long, value_name = "N", default_value = "1", value_parser = seed)]
     seed: u64,
@@ -749,6 +759,7 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
             a.loss = t.loss;
             a.clip = t.clip;
             a.logit_bound = t.logit_bound;
+            a.ta_clamp = t.ta_clamp;
             a.seed = t.seed;
             if let Some(n) = t.threads {
                 a.threads = n;

@@ -120,6 +120,16 @@ struct Job {
     size: (usize, usize),
 }
 
+/// The buffers `method` reads under `settings`: WSKP and AFN read the
+/// second estimate only for their fallback's noise.
+fn reads(method: MethodKind, settings: &Settings) -> [bool; 7] {
+    let mut r = method.reads();
+    if matches!(method, MethodKind::Wskp | MethodKind::Afn) && !settings.fallback {
+        r[crate::io::frame::Buffer::ColorB.index()] = false;
+    }
+    r
+}
+
 /// Reads frame `path`: its header checked for size and memory before any
 /// pixel, then its pixels (decompressed on `pool`), then the buffers of
 /// `aux` from their own files. `pipelined`: the run's mode (`None` for the
@@ -140,7 +150,7 @@ fn read_frame(
     let t0 = Instant::now();
     let read_opts = ReadOptions {
         selection: opts.selection.clone(),
-        buffers: Some(method.reads()),
+        buffers: Some(reads(method, settings)),
         keep_channels: opts.write.keep_channels,
     };
     let reader = Frame::open_with(path, limits, &read_opts)?;

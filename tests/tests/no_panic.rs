@@ -441,8 +441,11 @@ where
         history_cap: cs.vals[8],
         search_radius: cs.extra,
         albedo_limit: cs.vals[9],
+        clamp_sigma: cs.vals[10],
+        clamp_radius: cs.extra,
     };
-    for p in [params, TemporalParams::default()] {
+    let clamped = TemporalParams { clamp_sigma: 1.0, clamp_radius: cs.extra.min(8), ..TemporalParams::default() };
+    for p in [params, TemporalParams::default(), clamped] {
         let (mut od, os) = g.buf::<P::Store>((3, w, n));
         let (mut hd, hs) = g.buf::<P::Store>((1, w, n));
         ok(temporal::accumulate::<P>(

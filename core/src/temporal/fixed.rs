@@ -68,6 +68,44 @@ impl<'a> Test<'a> {
     }
 }
 
+/// The integer square root (floor) of `v >= 0`.
+fn isqrt(v: i64) -> i64 {
+    if v <= 0 {
+        return 0;
+    }
+    let mut r = libm::sqrt(v as f64) as i64;
+    while r * r > v {
+        r -= 1;
+    }
+    while (r + 1) * (r + 1) <= v {
+        r += 1;
+    }
+    r
+}
+
+/// The history clamp's bounds for channel `c` at `(y, x)` in the colour's
+/// format: the window's mean (rounded) `-+ k sigma`, `sigma` the integer
+/// square root of the population variance (rounded), `k` in Q.8.
+#[inline]
+fn clamp_bounds(v: &View<'_, i16>, c: usize, y: usize, x: usize, r: usize, k_q8: i64) -> (i64, i64) {
+    let (w, h) = (v.width(), v.height());
+    let (ys, ye, xs, xe) = (y.saturating_sub(r), (y + r + 1).min(h), x.saturating_sub(r), (x + r + 1).min(w));
+    let n = ((ye - ys) * (xe - xs)) as i64;
+    let (mut sum, mut sq) = (0i64, 0i64);
+    for yy in ys..ye {
+        for &q in &v.row(c, yy)[xs..xe] {
+            let q = ld(q) as i64;
+            sum += q;
+            sq += q * q;
+        }
+    }
+    // n^2 var = n sum q^2 - (sum q)^2 (exact in i64: |q| < 2^15, n <= 289).
+    let var = div_round(n * sq - sum * sum, n * n);
+    let ks = shr_round(k_q8 * isqrt(var), 8);
+    let mu = div_round(sum, n);
+    (mu - ks, mu + ks)
+}
+
 pub(crate) fn accumulate(
     inp: &TemporalInputs<'_, i16>,
     p: &TemporalParams,
@@ -83,6 +121,7 @@ pub(crate) fn accumulate(
     let (fo, fho) = (color.frac() as i32, history.frac() as i32);
     let amin = (p.alpha_min.clamp(0.0, 1.0) * ONE as f32) as i64;
     let cap = (p.history_cap.clamp(0.0, 1e6) as f64 * libm::exp2(fh as f64)) as i64;
+    let k_q8 = (p.clamp_sigma.clamp(0.0, 1e6) as f64 * 256.0).round() as i64;
     for yo in 0..color.height() {
         let y = y0 + yo;
         for x in 0..w {
@@ -159,7 +198,11 @@ pub(crate) fn accumulate(
                     for &(py, px, wt) in taps {
                         prev += wt * at(&inp.prev_color, c, py, px);
                     }
-                    let pv = rescale(mul_recip(prev, inv, 47), fpc, fc);
+                    let mut pv = rescale(mul_recip(prev, inv, 47), fpc, fc);
+                    if k_q8 > 0 {
+                        let (lo, hi) = clamp_bounds(&inp.color, c, y, x, p.clamp_radius, k_q8);
+                        pv = pv.clamp(lo, hi);
+                    }
                     let v = shr_round(alpha * cur + (ONE - alpha) * pv, 14);
                     color.row_mut(c, yo)[x] = sat16(rescale(v, fc, fo));
                 }

@@ -21,6 +21,16 @@
 //!    the reprojected history `n` (bilinear over the accepted taps) and
 //!    colour `prev`: `alpha = max(1 / (n + 1), alpha_min)`,
 //!    `out = alpha colour + (1 - alpha) prev`, history `min(n + 1, cap)`.
+//! 4. With `clamp_sigma = k > 0`, before the blend `prev` is clamped per
+//!    channel to `[mu - k sigma, mu + k sigma]`, the mean and the standard
+//!    deviation (population) of the current colour over the
+//!    `(2 clamp_radius + 1)^2` window around `p` (its in-image pixels): a
+//!    history that the current frame's neighbourhood cannot explain (a
+//!    light that moved or switched, a shadow that left) gives way to it
+//!    instead of lagging for `1 / alpha_min` frames. The statistics are
+//!    taken in f32 in the float precisions (f16 squares overflow), in
+//!    integers (an integer square root) in fixed point. A window with a
+//!    non-finite value leaves `prev` unclamped.
 //!
 //! `pos_limit` is in world units; the host derives it from the scene scale
 //! (a fraction of the frame's position bounding-box diagonal).
@@ -52,6 +62,11 @@ pub struct TemporalParams {
     pub search_radius: usize,
     /// Largest accepted distance between albedos (RGB).
     pub albedo_limit: f32,
+    /// The history clamp's width in standard deviations of the current
+    /// colour's neighbourhood (0: no clamp, as BMFR).
+    pub clamp_sigma: f32,
+    /// The history clamp's window radius (pixels; at most 8).
+    pub clamp_radius: usize,
 }
 
 impl Default for TemporalParams {
@@ -63,6 +78,8 @@ impl Default for TemporalParams {
             history_cap: 64.0,
             search_radius: 2,
             albedo_limit: 0.3,
+            clamp_sigma: 0.0,
+            clamp_radius: 2,
         }
     }
 }
@@ -187,6 +204,12 @@ pub fn accumulate<P: TemporalPrecision>(
         return Err(Error::BadParameter {
             what: "temporal history cap / search radius",
             expected: "a non-negative cap and a radius up to 16",
+        });
+    }
+    if !(params.clamp_sigma >= 0.0 && params.clamp_sigma <= 1e6) || params.clamp_radius > 8 {
+        return Err(Error::BadParameter {
+            what: "temporal history clamp",
+            expected: "a width of 0 (off) up to 1e6 standard deviations and a radius up to 8",
         });
     }
     check_band("accumulated colour", s, color.shape(), y0)?;

@@ -27,7 +27,10 @@ pub mod wskp;
 
 pub use atrous::Atrous;
 
-pub use basic::{scene_scale, Passthrough, TemporalAccumulation, POSITION_TOLERANCE};
+pub use basic::{
+    check_clamp, clamp_plan, scene_scale, ta_clamp_for, ta_clamp_of, Passthrough, TemporalAccumulation, CLAMP_STAGE,
+    POSITION_TOLERANCE, TA_CLAMP, TA_CLAMP_RADIUS,
+};
 
 /// The methods, by command-line name.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -90,8 +93,9 @@ impl MethodKind {
             MethodKind::Atrous | MethodKind::SureAtrous => {
                 set(&[B::Color, B::ColorB, B::Albedo, B::Normal, B::Depth, B::Position])
             }
+            // (B only for the fallback's noise, where the frame has it.)
             MethodKind::Wskp | MethodKind::Afn => {
-                set(&[B::Color, B::Albedo, B::Normal, B::Depth, B::Position, B::Motion])
+                set(&[B::Color, B::ColorB, B::Albedo, B::Normal, B::Depth, B::Position, B::Motion])
             }
             MethodKind::Cross => set(&[B::Color, B::ColorB, B::Albedo, B::Normal, B::Position, B::Motion]),
         }
@@ -193,6 +197,10 @@ pub struct Settings {
     /// WSKP and AFN: fall back towards the input where the output differs
     /// from it by more than its noise explains ([`fallback`]).
     pub fallback: bool,
+    /// Temporal accumulation's history clamp, in standard deviations of
+    /// the frame's 5x5 neighbourhood (0: off; `None`: `ta`'s default
+    /// [`TA_CLAMP`], the learned methods' [`ta_clamp_for`] their weights).
+    pub ta_clamp: Option<f32>,
     /// Online methods: the seed of the initial weights.
     pub seed: u64,
     /// Online methods: write the network's state here after every frame.
@@ -221,6 +229,7 @@ impl Default for Settings {
             weights: None,
             refine: true,
             fallback: true,
+            ta_clamp: None,
             seed: crate::methods::cross::SEED,
             save_state: None,
             load_state: None,
@@ -321,22 +330,29 @@ fn create_unchecked(kind: MethodKind, settings: &Settings, first: &Frame) -> Res
 fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Frame) -> Result<Box<dyn Denoiser>> {
     Ok(match kind {
         MethodKind::None => Box::new(Passthrough::<P>::new(first)),
-        MethodKind::Ta => Box::new(TemporalAccumulation::<P>::new(first, true)?),
+        MethodKind::Ta => Box::new(
+            TemporalAccumulation::<P>::new(first, true)?.with_clamp(settings.ta_clamp.unwrap_or(basic::TA_CLAMP))?,
+        ),
         MethodKind::Atrous => Box::new(Atrous::<P>::new(first, false, settings)?),
         MethodKind::SureAtrous => Box::new(Atrous::<P>::new(first, true, settings)?),
         MethodKind::Wskp => {
             let file = crate::methods::bundled::wskp(settings.weights.as_deref(), settings.layers)?;
-            Box::new(
-                crate::methods::wskp::Wskp::<P>::new(first, &file, settings.layers)?.with_fallback(settings.fallback),
-            )
+            let mut m =
+                crate::methods::wskp::Wskp::<P>::new(first, &file, settings.layers)?.with_fallback(settings.fallback);
+            if let Some(k) = settings.ta_clamp {
+                m = m.with_ta_clamp(k)?;
+            }
+            Box::new(m)
         }
         MethodKind::Afn => {
             let file = crate::methods::bundled::afn(settings.weights.as_deref())?;
-            Box::new(
-                crate::methods::afn::Afn::<P>::new(first, &file, settings.refine)?
-                    .with_whole_maps(settings.afn_whole_maps)
-                    .with_fallback(settings.fallback),
-            )
+            let mut m = crate::methods::afn::Afn::<P>::new(first, &file, settings.refine)?
+                .with_whole_maps(settings.afn_whole_maps)
+                .with_fallback(settings.fallback);
+            if let Some(k) = settings.ta_clamp {
+                m = m.with_ta_clamp(k)?;
+            }
+            Box::new(m)
         }
         MethodKind::Cross => unreachable!("built above"),
     })

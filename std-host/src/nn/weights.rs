@@ -182,6 +182,11 @@ impl File {
         m.metadata().as_ref().and_then(|h| h.get(key).cloned())
     }
 
+    /// The file's path.
+    pub fn path(&self) -> &std::path::Path {
+        &self.path
+    }
+
     /// Checks a metadata key has the expected value.
     pub fn expect_meta(&self, key: &str, want: &str) -> Result<()> {
         match self.meta(key) {

@@ -91,6 +91,9 @@ pub struct TrainArgs {
     pub emulate_spp: Vec<u32>,
     /// The learning rate's schedule.
     pub schedule: Schedule,
+    /// The temporal accumulation's history clamp (standard deviations; 0:
+    /// off) the inputs are made with; recorded in the weights (`ta_clamp`).
+    pub ta_clamp: f32,
 }
 
 /// How the learning rate moves over a run of `--steps` steps.
@@ -152,6 +155,7 @@ impl Default for TrainArgs {
             estimates: 2,
             emulate_spp: vec![4, 16, 64],
             schedule: Schedule::Cosine,
+            ta_clamp: crate::methods::TA_CLAMP,
         }
     }
 }
@@ -208,11 +212,12 @@ pub fn load_sequence(dir: &Path) -> Result<Sequence> {
     Ok(Sequence { dir: dir.to_path_buf(), frames, refs })
 }
 
-/// The temporally accumulated radiance of every frame (f32).
-pub fn accumulate(seq: &Sequence, threads: usize, isa: Isa) -> Result<Vec<Vec<f32>>> {
+/// The temporally accumulated radiance of every frame (f32), with the
+/// history clamp `clamp` (standard deviations; 0: off).
+pub fn accumulate(seq: &Sequence, threads: usize, isa: Isa, clamp: f32) -> Result<Vec<Vec<f32>>> {
     let settings = Settings { threads, isa, precision: PrecisionKind::F32, ..Settings::default() };
     let mut ctx = context(&settings)?;
-    let mut ta = TemporalAccumulation::<F32>::new(&seq.frames[0], false)?;
+    let mut ta = TemporalAccumulation::<F32>::new(&seq.frames[0], false)?.with_clamp(clamp)?;
     let mut t = Timings::default();
     seq.frames.iter().map(|f| ta.denoise(f, &mut ctx, &mut t)).collect()
 }
@@ -371,10 +376,16 @@ impl Model {
         }
     }
     /// A sequence's samples, appended to `out` (each frame's data in f16).
-    fn samples(self, s: &Sequence, pool: &crate::runtime::par::Pool, isa: Isa, out: &mut Vec<Sample>) -> Result<()> {
+    fn samples(
+        self,
+        s: &Sequence,
+        pool: &crate::runtime::par::Pool,
+        (isa, clamp): (Isa, f32),
+        out: &mut Vec<Sample>,
+    ) -> Result<()> {
         let (cin, own) = self.planes();
         {
-            let ta = accumulate(s, pool.threads(), isa)?;
+            let ta = accumulate(s, pool.threads(), isa, clamp)?;
             for ((f, t), r) in s.frames.iter().zip(&ta).zip(&s.refs) {
                 let n = f.width * f.height;
                 let mut data = vec![0.0f32; (cin + own) * n];
@@ -514,7 +525,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             }
         };
         let n0 = samples.len();
-        model.samples(&seq, &pool, a.isa, &mut samples)?;
+        model.samples(&seq, &pool, (a.isa, a.ta_clamp), &mut samples)?;
         origins.extend((0..samples.len() - n0).map(|j| format!("{} frame {j}", d.display())));
         let swapped = a.estimates > 1 && seq.frames.iter().all(|f| f.has(Buffer::ColorB));
         if swapped {
@@ -522,7 +533,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
                 f.swap_estimates();
             }
             let n0 = samples.len();
-            model.samples(&seq, &pool, a.isa, &mut samples)?;
+            model.samples(&seq, &pool, (a.isa, a.ta_clamp), &mut samples)?;
             origins.extend((0..samples.len() - n0).map(|j| format!("{} frame {j} (estimates swapped)", d.display())));
         }
         if !a.emulate_spp.is_empty() {
@@ -535,7 +546,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             let n = a.emulate_spp[nseqs % a.emulate_spp.len()];
             emulate_spp(&mut seq, n)?;
             let n0 = samples.len();
-            model.samples(&seq, &pool, a.isa, &mut samples)?;
+            model.samples(&seq, &pool, (a.isa, a.ta_clamp), &mut samples)?;
             origins.extend((0..samples.len() - n0).map(|j| format!("{} frame {j} (as {n} spp)", d.display())));
         }
         nseqs += 1;
@@ -581,12 +592,20 @@ pub fn run(a: &TrainArgs) -> Result<()> {
                 .and_then(|v| v.parse::<u64>().ok())
                 .ok_or_else(|| HostError::bad(r, format!("checkpoint metadata {k} missing")))
         };
+        let trained = crate::methods::ta_clamp_of(&f)?.unwrap_or(0.0);
+        if trained != a.ta_clamp {
+            return Err(HostError::bad(
+                r,
+                format!("the checkpoint's inputs were made with --ta-clamp {trained}; resume it with that value"),
+            ));
+        }
         step = num("step")?;
         seconds_before = f.meta("seconds").and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
         rng = Rng::from_state(num("rng")?);
         adam_state = Some((f.tensor("adam.m", &[nparams])?, f.tensor("adam.v", &[nparams])?, num("adam_t")?));
         eprintln!("resumed from {} at step {step}", r.display());
     }
+    let ta_meta = ("ta_clamp", a.ta_clamp.to_string());
     let mut at = 0;
     let spec: Vec<(Net, Vec<f32>, (usize, usize))> = nets
         .iter()
@@ -715,7 +734,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             None => {}
         }
         if last_ckpt.elapsed().as_secs_f64() >= a.checkpoint_minutes * 60.0 {
-            model.save(&ckpt, &tr, &[("seconds", format!("{secs:.1}"))], Some((step, &rng)))?;
+            model.save(&ckpt, &tr, &[("seconds", format!("{secs:.1}")), ta_meta.clone()], Some((step, &rng)))?;
             flush_log(&mut log)?;
             last_ckpt = Instant::now();
         }
@@ -724,8 +743,8 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         b.finish_and_clear();
     }
     let secs = seconds_before + start.elapsed().as_secs_f64();
-    model.save(&ckpt, &tr, &[("seconds", format!("{secs:.1}"))], Some((step, &rng)))?;
-    model.save(&a.out, &tr, &[("steps", step.to_string())], None)?;
+    model.save(&ckpt, &tr, &[("seconds", format!("{secs:.1}")), ta_meta.clone()], Some((step, &rng)))?;
+    model.save(&a.out, &tr, &[("steps", step.to_string()), ta_meta], None)?;
     let vp = if val.is_empty() { None } else { Some(validate_now(&tr)?) };
     eprintln!(
         "trained {step} steps in {secs:.1} s ({:.2} steps/s this run, {} threads, {}){}; final loss {:.4}{}; weights: {}",

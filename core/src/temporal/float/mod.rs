@@ -56,6 +56,40 @@ impl<'a, S: FloatElement, A: Real> Test<'a, S, A> {
     }
 }
 
+/// The history clamp's bounds for channel `c` at `(y, x)`: `mu -+ k sigma`
+/// of the colour over the window of radius `r` (in-image pixels), in f32;
+/// `None` when a bound is not finite.
+#[inline]
+fn clamp_bounds<S: FloatElement>(
+    v: &View<'_, S>,
+    c: usize,
+    y: usize,
+    x: usize,
+    r: usize,
+    k: f32,
+) -> Option<(f32, f32)> {
+    let (w, h) = (v.width(), v.height());
+    let (ys, ye, xs, xe) = (y.saturating_sub(r), (y + r + 1).min(h), x.saturating_sub(r), (x + r + 1).min(w));
+    let n = ((ye - ys) * (xe - xs)) as f32;
+    let mut sum = 0.0f32;
+    for yy in ys..ye {
+        for q in &v.row(c, yy)[xs..xe] {
+            sum += q.to_f32();
+        }
+    }
+    let mu = sum / n;
+    let mut ss = 0.0f32;
+    for yy in ys..ye {
+        for q in &v.row(c, yy)[xs..xe] {
+            let d = q.to_f32() - mu;
+            ss += d * d;
+        }
+    }
+    let sd = libm::sqrtf(ss / n);
+    let (lo, hi) = (mu - k * sd, mu + k * sd);
+    (lo.is_finite() && hi.is_finite()).then_some((lo, hi))
+}
+
 pub(crate) fn accumulate<S: FloatElement, A: Real>(
     _isa: crate::isa::Supported,
     inp: &TemporalInputs<'_, S>,
@@ -141,7 +175,17 @@ pub(crate) fn accumulate<S: FloatElement, A: Real>(
                     for &(py, px, wt) in taps {
                         pv += wt * get::<S, A>(&inp.prev_color, c, py, px);
                     }
-                    let pv = pv * inv;
+                    let mut pv = pv * inv;
+                    if p.clamp_sigma > 0.0 {
+                        if let Some((lo, hi)) = clamp_bounds(&inp.color, c, y, x, p.clamp_radius, p.clamp_sigma) {
+                            let f = pv.f32();
+                            if f < lo {
+                                pv = A::of(lo);
+                            } else if f > hi {
+                                pv = A::of(hi);
+                            }
+                        }
+                    }
                     let v = alpha * cur(c) + (A::ONE - alpha) * pv;
                     color.row_mut(c, yo)[x] = S::from_f32(v.f32());
                 }

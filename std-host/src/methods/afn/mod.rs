@@ -513,7 +513,18 @@ impl<P: HostPrecision> Afn<P> {
                 Variant::parse(&v).ok_or_else(|| HostError::Usage(format!("afn weights: unknown variant '{v}'")))?
             }
         };
-        Self::from_params(first, params, refine, variant)
+        Self::from_params(first, params, refine, variant)?.with_ta_clamp(crate::methods::basic::ta_clamp_for(file)?)
+    }
+
+    /// With the accumulation's history clamp of width `k` (0: off; unless
+    /// told, the weights' own, `ta_clamp`: see [`crate::methods::ta_clamp_for`]).
+    ///
+    /// # Errors
+    /// A width outside `[0, 1e6]`.
+    pub fn with_ta_clamp(mut self, k: f32) -> Result<Self> {
+        self.ta = self.ta.with_clamp(k)?;
+        crate::methods::basic::clamp_plan(&mut self.plan, k, "--ta-clamp 0, or weights trained with it off");
+        Ok(self)
     }
 
     /// Memory per frame (see [`crate::runtime::memory`]): the accumulation, the f32
@@ -606,7 +617,7 @@ impl<P: HostPrecision> Afn<P> {
         if variant != Variant::Fusion {
             plan.skipped.push(("scale compositor", format!("the {} variant filters one image", variant.name())));
         }
-        crate::methods::fallback::plan(&mut plan, true);
+        crate::methods::fallback::plan(&mut plan, true, first.has(crate::io::frame::Buffer::ColorB));
         Ok(Afn {
             plan,
             kernel_net: kernel_net()?,
@@ -634,7 +645,9 @@ impl<P: HostPrecision> Afn<P> {
     /// ([`crate::methods::fallback`]; on unless told).
     pub fn with_fallback(mut self, on: bool) -> Self {
         self.fallback = on;
-        crate::methods::fallback::plan(&mut self.plan, on);
+        let pair = self.plan.built.contains(&crate::methods::fallback::STAGE_PAIR)
+            || self.plan.skipped.iter().any(|(s, _)| *s == crate::methods::fallback::STAGE_PAIR);
+        crate::methods::fallback::plan(&mut self.plan, on, pair);
         self
     }
 }
@@ -792,7 +805,8 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
         if self.fallback {
             let albedo = f.require(crate::io::frame::Buffer::Albedo, "afn")?;
             let colour = f.require(crate::io::frame::Buffer::Color, "afn")?;
-            t.time("fallback", || crate::methods::fallback::to_input(ctx, &mut out, colour, albedo, w, h, e))?;
+            let pair = f.get(crate::io::frame::Buffer::ColorB);
+            t.time("fallback", || crate::methods::fallback::to_input(ctx, &mut out, colour, pair, albedo, w, h, e))?;
         }
         Ok(out)
     }

@@ -394,7 +394,18 @@ impl<P: HostPrecision> Wskp<P> {
         file.expect_meta("layers", &layers.to_string())?;
         file.expect_transform(features::TRANSFORM)?;
         let params = file.params(&net, "wskp", &["adam.m", "adam.v"])?;
-        Self::from_params(first, net, params, layers, sizes)
+        Self::from_params(first, net, params, layers, sizes)?.with_ta_clamp(crate::methods::basic::ta_clamp_for(file)?)
+    }
+
+    /// With the accumulation's history clamp of width `k` (0: off; unless
+    /// told, the weights' own, `ta_clamp`: see [`crate::methods::ta_clamp_for`]).
+    ///
+    /// # Errors
+    /// A width outside `[0, 1e6]`.
+    pub fn with_ta_clamp(mut self, k: f32) -> Result<Self> {
+        self.ta = self.ta.with_clamp(k)?;
+        crate::methods::basic::clamp_plan(&mut self.plan, k, "--ta-clamp 0, or weights trained with it off");
+        Ok(self)
     }
 
     /// Memory per frame (see [`crate::runtime::memory`]): the accumulation, the f32
@@ -459,7 +470,7 @@ impl<P: HostPrecision> Wskp<P> {
             s if s.count() == 1 => "importance filter (one window size, the weights' sizes metadata)",
             _ => "fused importance filter (the weights' sizes metadata)",
         });
-        crate::methods::fallback::plan(&mut plan, true);
+        crate::methods::fallback::plan(&mut plan, true, first.has(crate::io::frame::Buffer::ColorB));
         Ok(Wskp { plan, sizes, net, params, ta, infer: None, bufs: None, stored: None, fallback: true })
     }
 
@@ -467,7 +478,9 @@ impl<P: HostPrecision> Wskp<P> {
     /// ([`crate::methods::fallback`]; on unless told).
     pub fn with_fallback(mut self, on: bool) -> Self {
         self.fallback = on;
-        crate::methods::fallback::plan(&mut self.plan, on);
+        let pair = self.plan.built.contains(&crate::methods::fallback::STAGE_PAIR)
+            || self.plan.skipped.iter().any(|(s, _)| *s == crate::methods::fallback::STAGE_PAIR);
+        crate::methods::fallback::plan(&mut self.plan, on, pair);
         self
     }
 }
@@ -601,7 +614,8 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
         }
         if self.fallback {
             let colour = f.require(crate::io::frame::Buffer::Color, "wskp")?;
-            t.time("fallback", || crate::methods::fallback::to_input(ctx, &mut out, colour, a, w, h, exposure))?;
+            let pair = f.get(crate::io::frame::Buffer::ColorB);
+            t.time("fallback", || crate::methods::fallback::to_input(ctx, &mut out, colour, pair, a, w, h, exposure))?;
         }
         Ok(out)
     }
