@@ -83,27 +83,61 @@ fn isqrt(v: i64) -> i64 {
     r
 }
 
-/// The history clamp's bounds for channel `c` at `(y, x)` in the colour's
-/// format: the window's mean (rounded) `-+ k sigma`, `sigma` the integer
-/// square root of the population variance (rounded), `k` in Q.8.
-#[inline]
-fn clamp_bounds(v: &View<'_, i16>, c: usize, y: usize, x: usize, r: usize, k_q8: i64) -> (i64, i64) {
+/// Pixels per tile of the history clamp's statistics (on the stack).
+const TILE: usize = 32;
+/// Colour channels whose clamp statistics a tile holds; more channels take
+/// each pixel's window on its own.
+const TILE_CH: usize = 4;
+
+/// The history clamp's bounds of channel `c` for the pixels `x0 .. x1` (at
+/// most [`TILE`]) of row `y`, in the colour's format: the window's mean
+/// (rounded) `-+ k sigma`, `sigma` the integer square root of the
+/// population variance (rounded), `k` in Q.8; from exact `i64` column sums
+/// of `v` and `v^2` (`|v| < 2^15`, at most 289 of them) and their prefix
+/// sums.
+fn tile_bounds(
+    v: &View<'_, i16>,
+    c: usize,
+    y: usize,
+    (x0, x1): (usize, usize),
+    r: usize,
+    k_q8: i64,
+    out: &mut [(i64, i64); TILE],
+) {
     let (w, h) = (v.width(), v.height());
-    let (ys, ye, xs, xe) = (y.saturating_sub(r), (y + r + 1).min(h), x.saturating_sub(r), (x + r + 1).min(w));
-    let n = ((ye - ys) * (xe - xs)) as i64;
-    let (mut sum, mut sq) = (0i64, 0i64);
-    for yy in ys..ye {
-        for &q in &v.row(c, yy)[xs..xe] {
-            let q = ld(q) as i64;
-            sum += q;
-            sq += q * q;
+    let (ys, ye) = (y.saturating_sub(r), (y + r + 1).min(h));
+    let (xs, xe) = (x0.saturating_sub(r), (x1 + r).min(w));
+    let mut p1 = [0i64; TILE + 17];
+    let mut p2 = [0i64; TILE + 17];
+    for j in xs..xe {
+        let (mut s1, mut s2) = (0i64, 0i64);
+        for yy in ys..ye {
+            let q = ld(v.row(c, yy)[j]) as i64;
+            s1 += q;
+            s2 += q * q;
         }
+        let i = j - xs;
+        p1[i + 1] = p1[i] + s1;
+        p2[i + 1] = p2[i] + s2;
     }
-    // n^2 var = n sum q^2 - (sum q)^2 (exact in i64: |q| < 2^15, n <= 289).
-    let var = div_round(n * sq - sum * sum, n * n);
-    let ks = shr_round(k_q8 * isqrt(var), 8);
-    let mu = div_round(sum, n);
-    (mu - ks, mu + ks)
+    let rows = (ye - ys) as i64;
+    for x in x0..x1 {
+        let (a, b) = (x.saturating_sub(r) - xs, (x + r + 1).min(w) - xs);
+        let n = rows * (b - a) as i64;
+        let (sum, sq) = (p1[b] - p1[a], p2[b] - p2[a]);
+        // n^2 var = n sum q^2 - (sum q)^2 (under 2^48).
+        let var = div_round(n * sq - sum * sum, n * n);
+        let ks = shr_round(k_q8 * isqrt(var), 8);
+        let mu = div_round(sum, n);
+        out[x - x0] = (mu - ks, mu + ks);
+    }
+}
+
+/// [`tile_bounds`] for one pixel.
+fn clamp_bounds(v: &View<'_, i16>, c: usize, y: usize, x: usize, r: usize, k_q8: i64) -> (i64, i64) {
+    let mut one = [(0, 0); TILE];
+    tile_bounds(v, c, y, (x, x + 1), r, k_q8, &mut one);
+    one[0]
 }
 
 pub(crate) fn accumulate(
@@ -121,10 +155,18 @@ pub(crate) fn accumulate(
     let (fo, fho) = (color.frac() as i32, history.frac() as i32);
     let amin = (p.alpha_min.clamp(0.0, 1.0) * ONE as f32) as i64;
     let cap = (p.history_cap.clamp(0.0, 1e6) as f64 * libm::exp2(fh as f64)) as i64;
-    let k_q8 = (p.clamp_sigma.clamp(0.0, 1e6) as f64 * 256.0).round() as i64;
+    let k_q8 = libm::round(p.clamp_sigma.clamp(0.0, 1e6) as f64 * 256.0) as i64;
+    let r = p.clamp_radius.min(8);
+    let tiled = k_q8 > 0 && ch <= TILE_CH;
+    let mut bounds = [[(0i64, 0i64); TILE]; TILE_CH];
     for yo in 0..color.height() {
         let y = y0 + yo;
         for x in 0..w {
+            if tiled && x % TILE == 0 {
+                for (c, b) in bounds.iter_mut().enumerate().take(ch) {
+                    tile_bounds(&inp.color, c, y, (x, (x + TILE).min(w)), r, k_q8, b);
+                }
+            }
             // The accepted taps (at most the four bilinear ones), then their
             // sums: any number of colour channels.
             let mut taps = [(0usize, 0usize, 0i64); 4];
@@ -200,7 +242,8 @@ pub(crate) fn accumulate(
                     }
                     let mut pv = rescale(mul_recip(prev, inv, 47), fpc, fc);
                     if k_q8 > 0 {
-                        let (lo, hi) = clamp_bounds(&inp.color, c, y, x, p.clamp_radius, k_q8);
+                        let (lo, hi) =
+                            if tiled { bounds[c][x % TILE] } else { clamp_bounds(&inp.color, c, y, x, r, k_q8) };
                         pv = pv.clamp(lo, hi);
                     }
                     let v = shr_round(alpha * cur + (ONE - alpha) * pv, 14);

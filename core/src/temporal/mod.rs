@@ -27,9 +27,10 @@
 //!    `(2 clamp_radius + 1)^2` window around `p` (its in-image pixels): a
 //!    history that the current frame's neighbourhood cannot explain (a
 //!    light that moved or switched, a shadow that left) gives way to it
-//!    instead of lagging for `1 / alpha_min` frames. The statistics are
-//!    taken in f32 in the float precisions (f16 squares overflow), in
-//!    integers (an integer square root) in fixed point. A window with a
+//!    instead of lagging for `1 / alpha_min` frames. The statistics come
+//!    from sums of the values and their squares over the window, in f64 in
+//!    the float precisions (f16 squares overflow), exactly in integers (an
+//!    integer square root) in fixed point. A window with a
 //!    non-finite value leaves `prev` unclamped.
 //!
 //! `pos_limit` is in world units; the host derives it from the scene scale

@@ -56,10 +56,71 @@ impl<'a, S: FloatElement, A: Real> Test<'a, S, A> {
     }
 }
 
-/// The history clamp's bounds for channel `c` at `(y, x)`: `mu -+ k sigma`
-/// of the colour over the window of radius `r` (in-image pixels), in f32;
-/// `None` when a bound is not finite.
-#[inline]
+/// Pixels per tile of the history clamp's statistics (on the stack: the
+/// core allocates nothing, and runs on microcontrollers).
+const TILE: usize = 32;
+/// Colour channels whose clamp statistics a tile holds; more channels take
+/// each pixel's window on its own ([`clamp_bounds`]).
+const TILE_CH: usize = 4;
+
+/// The history clamp's bounds of channel `c` for the pixels `x0 .. x1` (at
+/// most [`TILE`]) of row `y`: `mu -+ k sigma` of the colour over the window
+/// of radius `r <= 8` (in-image pixels), from column sums of `v` and `v^2`
+/// in f64 and their prefix sums; `None` where the window holds a value that
+/// is not finite.
+#[allow(clippy::too_many_arguments)]
+fn tile_bounds<S: FloatElement>(
+    v: &View<'_, S>,
+    c: usize,
+    y: usize,
+    (x0, x1): (usize, usize),
+    r: usize,
+    k: f32,
+    out: &mut [Option<(f32, f32)>; TILE],
+) {
+    let (w, h) = (v.width(), v.height());
+    let (ys, ye) = (y.saturating_sub(r), (y + r + 1).min(h));
+    let (xs, xe) = (x0.saturating_sub(r), (x1 + r).min(w));
+    // Prefix sums over the columns xs .. xe: sum, sum of squares, count of
+    // values that are not finite.
+    let mut p1 = [0.0f64; TILE + 17];
+    let mut p2 = [0.0f64; TILE + 17];
+    let mut bad = [0u32; TILE + 17];
+    for j in xs..xe {
+        let (mut s1, mut s2, mut b) = (0.0f64, 0.0f64, 0u32);
+        for yy in ys..ye {
+            let q = v.row(c, yy)[j].to_f32();
+            if q.is_finite() {
+                let q = q as f64;
+                s1 += q;
+                s2 += q * q;
+            } else {
+                b += 1;
+            }
+        }
+        let i = j - xs;
+        p1[i + 1] = p1[i] + s1;
+        p2[i + 1] = p2[i] + s2;
+        bad[i + 1] = bad[i] + b;
+    }
+    let rows = (ye - ys) as f64;
+    for x in x0..x1 {
+        let (a, b) = (x.saturating_sub(r) - xs, (x + r + 1).min(w) - xs);
+        out[x - x0] = if bad[b] > bad[a] {
+            None
+        } else {
+            let n = rows * (b - a) as f64;
+            let mu = (p1[b] - p1[a]) / n;
+            let var = ((p2[b] - p2[a]) / n - mu * mu).max(0.0);
+            let ks = k as f64 * libm::sqrt(var);
+            let (lo, hi) = ((mu - ks) as f32, (mu + ks) as f32);
+            (lo.is_finite() && hi.is_finite()).then_some((lo, hi))
+        };
+    }
+}
+
+/// [`tile_bounds`] for one pixel (colours of more than [`TILE_CH`]
+/// channels).
 fn clamp_bounds<S: FloatElement>(
     v: &View<'_, S>,
     c: usize,
@@ -68,26 +129,9 @@ fn clamp_bounds<S: FloatElement>(
     r: usize,
     k: f32,
 ) -> Option<(f32, f32)> {
-    let (w, h) = (v.width(), v.height());
-    let (ys, ye, xs, xe) = (y.saturating_sub(r), (y + r + 1).min(h), x.saturating_sub(r), (x + r + 1).min(w));
-    let n = ((ye - ys) * (xe - xs)) as f32;
-    let mut sum = 0.0f32;
-    for yy in ys..ye {
-        for q in &v.row(c, yy)[xs..xe] {
-            sum += q.to_f32();
-        }
-    }
-    let mu = sum / n;
-    let mut ss = 0.0f32;
-    for yy in ys..ye {
-        for q in &v.row(c, yy)[xs..xe] {
-            let d = q.to_f32() - mu;
-            ss += d * d;
-        }
-    }
-    let sd = libm::sqrtf(ss / n);
-    let (lo, hi) = (mu - k * sd, mu + k * sd);
-    (lo.is_finite() && hi.is_finite()).then_some((lo, hi))
+    let mut one = [None; TILE];
+    tile_bounds(v, c, y, (x, x + 1), r, k, &mut one);
+    one[0]
 }
 
 pub(crate) fn accumulate<S: FloatElement, A: Real>(
@@ -99,9 +143,17 @@ pub(crate) fn accumulate<S: FloatElement, A: Real>(
     y0: usize,
 ) {
     let (w, h, ch) = (inp.color.width(), inp.color.height(), inp.color.channels());
+    let (clamp, r) = (p.clamp_sigma > 0.0, p.clamp_radius.min(8));
+    let tiled = clamp && ch <= TILE_CH;
+    let mut bounds = [[None; TILE]; TILE_CH];
     for yo in 0..color.height() {
         let y = y0 + yo;
         for x in 0..w {
+            if tiled && x % TILE == 0 {
+                for (c, b) in bounds.iter_mut().enumerate().take(ch) {
+                    tile_bounds(&inp.color, c, y, (x, (x + TILE).min(w)), r, p.clamp_sigma, b);
+                }
+            }
             // Gather the reprojected colour and history.
             // The accepted taps (at most the four bilinear ones), then their
             // sums: any number of colour channels.
@@ -176,8 +228,13 @@ pub(crate) fn accumulate<S: FloatElement, A: Real>(
                         pv += wt * get::<S, A>(&inp.prev_color, c, py, px);
                     }
                     let mut pv = pv * inv;
-                    if p.clamp_sigma > 0.0 {
-                        if let Some((lo, hi)) = clamp_bounds(&inp.color, c, y, x, p.clamp_radius, p.clamp_sigma) {
+                    if clamp {
+                        let b = if tiled {
+                            bounds[c][x % TILE]
+                        } else {
+                            clamp_bounds(&inp.color, c, y, x, r, p.clamp_sigma)
+                        };
+                        if let Some((lo, hi)) = b {
                             let f = pv.f32();
                             if f < lo {
                                 pv = A::of(lo);
