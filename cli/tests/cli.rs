@@ -166,6 +166,11 @@ fn bad_arguments_name_the_parameter() {
     assert_fails(&out, 2, "unknown command 'frobnicate'");
     let out = run(&["denoise", "--method", "none", "--threads", "99999999999999999999999", "x.exr", "-o", "o"]);
     assert_fails(&out, 2, "--threads");
+    for bad in ["-1", "nan", "inf", "x"] {
+        let arg = format!("--ta-clamp={bad}");
+        let out = run(&["denoise", "--method", "ta", &arg, "x.exr", "-o", "o"]);
+        assert_fails(&out, 2, &format!("--ta-clamp: expected a number from 0 (off) up to 1e6, got '{bad}'"));
+    }
 }
 
 #[test]
@@ -496,6 +501,23 @@ fn denoise_summary_json_and_quiet() {
 
     let out = run(&["denoise", "--method", "ta", "--quiet", seq.to_str().unwrap(), "-o", o.to_str().unwrap()]);
     assert!(out.status.success() && out.stdout.is_empty() && out.stderr.is_empty(), "{out:?}");
+
+    // The history clamp: built by default, skipped and named with 0.
+    let plan = |extra: &[&str]| {
+        let mut args = vec!["denoise", "--method", "ta", "--json"];
+        args.extend_from_slice(extra);
+        args.extend_from_slice(&[seq.to_str().unwrap(), "-o", o.to_str().unwrap()]);
+        let out = run(&args);
+        assert!(out.status.success(), "{out:?}");
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    let on = plan(&[]);
+    assert!(on.contains("\"built\":[\"temporal accumulation\",\"history clamp"), "{on}");
+    let off = plan(&["--ta-clamp", "0"]);
+    assert!(
+        !off.contains("\"built\":[\"temporal accumulation\",\"history clamp") && off.contains("--ta-clamp 0"),
+        "{off}"
+    );
 }
 
 /// clap's own consistency checks of the definition (they run only in debug
