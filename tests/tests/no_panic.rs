@@ -443,6 +443,7 @@ where
         albedo_limit: cs.vals[9],
         clamp_sigma: cs.vals[10],
         clamp_radius: cs.extra,
+        clamp_floor: cs.vals[11],
     };
     let clamped = TemporalParams { clamp_sigma: 1.0, clamp_radius: cs.extra.min(8), ..TemporalParams::default() };
     for p in [params, TemporalParams::default(), clamped] {

@@ -59,6 +59,7 @@ fn case_ch(ch: usize, w: usize, h: usize, seed: u64) -> Case {
         // Every other seed with the history clamp, at several widths.
         clamp_sigma: if seed % 2 == 1 { [0.5, 1.0, 2.0][(seed / 2 % 3) as usize] } else { 0.0 },
         clamp_radius: (seed % 4) as usize,
+        clamp_floor: [0.0, 0.5, 2.0][(seed / 3 % 3) as usize],
     };
     let mut c = Case {
         ch,
@@ -153,7 +154,7 @@ fn oracle(c: &Case, motion: bool) -> (Vec<f64>, Vec<f64>) {
         f(p.history_cap),
         p.search_radius,
         f(p.albedo_limit),
-        (f(p.clamp_sigma), p.clamp_radius),
+        (f(p.clamp_sigma), p.clamp_radius, f(p.clamp_floor)),
     )
 }
 

@@ -89,19 +89,16 @@ const TILE: usize = 32;
 /// each pixel's window on its own.
 const TILE_CH: usize = 4;
 
-/// The history clamp's bounds of channel `c` for the pixels `x0 .. x1` (at
-/// most [`TILE`]) of row `y`, in the colour's format: the window's mean
-/// (rounded) `-+ k sigma`, `sigma` the integer square root of the
-/// population variance (rounded), `k` in Q.8; from exact `i64` column sums
-/// of `v` and `v^2` (`|v| < 2^15`, at most 289 of them) and their prefix
-/// sums.
+/// The history clamp's statistics of channel `c` for the pixels `x0 .. x1`
+/// (at most [`TILE`]) of row `y`, in the colour's format: the window's mean
+/// and population variance (both rounded); from exact `i64` column sums of
+/// `v` and `v^2` (`|v| < 2^15`, at most 289 of them) and their prefix sums.
 fn tile_bounds(
     v: &View<'_, i16>,
     c: usize,
     y: usize,
     (x0, x1): (usize, usize),
     r: usize,
-    k_q8: i64,
     out: &mut [(i64, i64); TILE],
 ) {
     let (w, h) = (v.width(), v.height());
@@ -127,17 +124,24 @@ fn tile_bounds(
         let (sum, sq) = (p1[b] - p1[a], p2[b] - p2[a]);
         // n^2 var = n sum q^2 - (sum q)^2 (under 2^48).
         let var = div_round(n * sq - sum * sum, n * n);
-        let ks = shr_round(k_q8 * isqrt(var), 8);
-        let mu = div_round(sum, n);
-        out[x - x0] = (mu - ks, mu + ks);
+        out[x - x0] = (div_round(sum, n), var);
     }
 }
 
 /// [`tile_bounds`] for one pixel.
-fn clamp_bounds(v: &View<'_, i16>, c: usize, y: usize, x: usize, r: usize, k_q8: i64) -> (i64, i64) {
+fn clamp_bounds(v: &View<'_, i16>, c: usize, y: usize, x: usize, r: usize) -> (i64, i64) {
     let mut one = [(0, 0); TILE];
-    tile_bounds(v, c, y, (x, x + 1), r, k_q8, &mut one);
+    tile_bounds(v, c, y, (x, x + 1), r, &mut one);
     one[0]
+}
+
+/// `h` clamped to `mu -+ k sqrt(var + (floor h)^2)`: `k` and `floor` in
+/// Q.8, the square root an integer one, all in the colour's format.
+#[inline]
+fn clamp_to(h: i64, (mu, var): (i64, i64), k_q8: i64, floor_q8: i64) -> i64 {
+    let fh = shr_round(floor_q8 * h, 8);
+    let ks = shr_round(k_q8 * isqrt(var + fh * fh), 8);
+    h.clamp(mu - ks, mu + ks)
 }
 
 pub(crate) fn accumulate(
@@ -157,6 +161,7 @@ pub(crate) fn accumulate(
     let cap = (p.history_cap.clamp(0.0, 1e6) as f64 * libm::exp2(fh as f64)) as i64;
     let k_q8 = libm::round(p.clamp_sigma.clamp(0.0, 1e6) as f64 * 256.0) as i64;
     let r = p.clamp_radius.min(8);
+    let floor_q8 = libm::round(p.clamp_floor.clamp(0.0, 1e3) as f64 * 256.0) as i64;
     let tiled = k_q8 > 0 && ch <= TILE_CH;
     let mut bounds = [[(0i64, 0i64); TILE]; TILE_CH];
     for yo in 0..color.height() {
@@ -164,7 +169,7 @@ pub(crate) fn accumulate(
         for x in 0..w {
             if tiled && x % TILE == 0 {
                 for (c, b) in bounds.iter_mut().enumerate().take(ch) {
-                    tile_bounds(&inp.color, c, y, (x, (x + TILE).min(w)), r, k_q8, b);
+                    tile_bounds(&inp.color, c, y, (x, (x + TILE).min(w)), r, b);
                 }
             }
             // The accepted taps (at most the four bilinear ones), then their
@@ -242,9 +247,8 @@ pub(crate) fn accumulate(
                     }
                     let mut pv = rescale(mul_recip(prev, inv, 47), fpc, fc);
                     if k_q8 > 0 {
-                        let (lo, hi) =
-                            if tiled { bounds[c][x % TILE] } else { clamp_bounds(&inp.color, c, y, x, r, k_q8) };
-                        pv = pv.clamp(lo, hi);
+                        let st = if tiled { bounds[c][x % TILE] } else { clamp_bounds(&inp.color, c, y, x, r) };
+                        pv = clamp_to(pv, st, k_q8, floor_q8);
                     }
                     let v = shr_round(alpha * cur + (ONE - alpha) * pv, 14);
                     color.row_mut(c, yo)[x] = sat16(rescale(v, fc, fo));

@@ -22,8 +22,8 @@
 //!    colour `prev`: `alpha = max(1 / (n + 1), alpha_min)`,
 //!    `out = alpha colour + (1 - alpha) prev`, history `min(n + 1, cap)`.
 //! 4. With `clamp_sigma = k > 0`, before the blend `prev` is clamped per
-//!    channel to `[mu - k sigma, mu + k sigma]`, the mean and the standard
-//!    deviation (population) of the current colour over the
+//!    channel to `mu -+ k sqrt(sigma^2 + (clamp_floor prev)^2)`, with the
+//!    mean and the variance (population) of the current colour over the
 //!    `(2 clamp_radius + 1)^2` window around `p` (its in-image pixels): a
 //!    history that the current frame's neighbourhood cannot explain (a
 //!    light that moved or switched, a shadow that left) gives way to it
@@ -68,6 +68,11 @@ pub struct TemporalParams {
     pub clamp_sigma: f32,
     /// The history clamp's window radius (pixels; at most 8).
     pub clamp_radius: usize,
+    /// The history clamp's floor: the window's variance is widened by
+    /// `(clamp_floor prev)^2`, so that a window of zeros (a dim surface at
+    /// 1 spp) cannot wipe a history out (at most `1 - k clamp_floor` of it
+    /// goes in a frame).
+    pub clamp_floor: f32,
 }
 
 impl Default for TemporalParams {
@@ -81,6 +86,7 @@ impl Default for TemporalParams {
             albedo_limit: 0.3,
             clamp_sigma: 0.0,
             clamp_radius: 2,
+            clamp_floor: 0.5,
         }
     }
 }
@@ -207,10 +213,13 @@ pub fn accumulate<P: TemporalPrecision>(
             expected: "a non-negative cap and a radius up to 16",
         });
     }
-    if !(params.clamp_sigma >= 0.0 && params.clamp_sigma <= 1e6) || params.clamp_radius > 8 {
+    if !(params.clamp_sigma >= 0.0 && params.clamp_sigma <= 1e6)
+        || params.clamp_radius > 8
+        || !(params.clamp_floor >= 0.0 && params.clamp_floor <= 1e3)
+    {
         return Err(Error::BadParameter {
             what: "temporal history clamp",
-            expected: "a width of 0 (off) up to 1e6 standard deviations and a radius up to 8",
+            expected: "a width of 0 (off) up to 1e6 standard deviations, a radius up to 8 and a floor from 0 to 1e3",
         });
     }
     check_band("accumulated colour", s, color.shape(), y0)?;

@@ -93,10 +93,10 @@ pub struct TemporalRef<'a> {
 /// buffers exist, `|dpos|^2 < pos_limit^2`, `|dn|^2 < normal_limit^2` and
 /// `|dalbedo|^2 < albedo_limit^2`; accepted taps renormalised. No tap: the colour, history 0; else
 /// `alpha = max(1/(n+1), alpha_min)` and history `min(n + 1, cap)`.
-/// With `clamp = (k, r)`, `k > 0`, the reprojected colour is first clamped
-/// per channel to `mean -+ k sd` (population) of the current colour over
-/// the in-image pixels of the `(2r + 1)^2` window (left alone when a bound
-/// is not finite).
+/// With `clamp = (k, r, f)`, `k > 0`, the reprojected colour `prev` is
+/// first clamped per channel to `mean -+ k sqrt(var + (f prev)^2)`, the mean
+/// and population variance of the current colour over the in-image pixels
+/// of the `(2r + 1)^2` window (left alone when a bound is not finite).
 /// Returns the colour (`c` planes) and the history (1 plane).
 #[allow(clippy::too_many_arguments)]
 pub fn temporal(
@@ -107,7 +107,7 @@ pub fn temporal(
     history_cap: f64,
     radius: usize,
     albedo_limit: f64,
-    clamp: (f64, usize),
+    clamp: (f64, usize, f64),
 ) -> (Vec<f64>, Vec<f64>) {
     let (c, w, h) = (t.c, t.w, t.h);
     let plane = w * h;
@@ -174,15 +174,16 @@ pub fn temporal(
                 let a = (1.0 / (n + 1.0)).max(alpha_min);
                 for ch in 0..c {
                     let mut prev = taps.iter().map(|&(q, wt)| wt * t.prev_color[ch * plane + q]).sum::<f64>() / ws;
-                    let (k, r) = clamp;
+                    let (k, r, fl) = clamp;
                     if k > 0.0 {
                         let win: Vec<f64> = (y.saturating_sub(r)..(y + r + 1).min(h))
                             .flat_map(|qy| (x.saturating_sub(r)..(x + r + 1).min(w)).map(move |qx| qy * w + qx))
                             .map(|q| t.color[ch * plane + q])
                             .collect();
                         let mu = win.iter().sum::<f64>() / win.len() as f64;
-                        let sd = (win.iter().map(|v| (v - mu).powi(2)).sum::<f64>() / win.len() as f64).sqrt();
-                        let (lo, hi) = (mu - k * sd, mu + k * sd);
+                        let var = win.iter().map(|v| (v - mu).powi(2)).sum::<f64>() / win.len() as f64;
+                        let s = (var + (fl * prev).powi(2)).sqrt();
+                        let (lo, hi) = (mu - k * s, mu + k * s);
                         if lo.is_finite() && hi.is_finite() {
                             prev = prev.clamp(lo, hi);
                         }

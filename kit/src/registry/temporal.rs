@@ -185,7 +185,7 @@ fn o_temporal_paths(i: &Inputs, search: bool) -> (Vec<f64>, Vec<f64>) {
         f(p.history_cap),
         p.search_radius,
         f(p.albedo_limit),
-        (f(p.clamp_sigma), p.clamp_radius),
+        (f(p.clamp_sigma), p.clamp_radius, f(p.clamp_floor)),
     )
 }
 

@@ -63,11 +63,11 @@ const TILE: usize = 32;
 /// each pixel's window on its own ([`clamp_bounds`]).
 const TILE_CH: usize = 4;
 
-/// The history clamp's bounds of channel `c` for the pixels `x0 .. x1` (at
-/// most [`TILE`]) of row `y`: `mu -+ k sigma` of the colour over the window
-/// of radius `r <= 8` (in-image pixels), from column sums of `v` and `v^2`
-/// in f64 and their prefix sums; `None` where the window holds a value that
-/// is not finite.
+/// The history clamp's statistics of channel `c` for the pixels `x0 .. x1`
+/// (at most [`TILE`]) of row `y`: the mean and the (population) variance of
+/// the colour over the window of radius `r <= 8` (in-image pixels), from
+/// column sums of `v` and `v^2` in f64 and their prefix sums; `None` where
+/// the window holds a value that is not finite.
 #[allow(clippy::too_many_arguments)]
 fn tile_bounds<S: FloatElement>(
     v: &View<'_, S>,
@@ -75,8 +75,7 @@ fn tile_bounds<S: FloatElement>(
     y: usize,
     (x0, x1): (usize, usize),
     r: usize,
-    k: f32,
-    out: &mut [Option<(f32, f32)>; TILE],
+    out: &mut [Option<(f64, f64)>; TILE],
 ) {
     let (w, h) = (v.width(), v.height());
     let (ys, ye) = (y.saturating_sub(r), (y + r + 1).min(h));
@@ -112,26 +111,33 @@ fn tile_bounds<S: FloatElement>(
             let n = rows * (b - a) as f64;
             let mu = (p1[b] - p1[a]) / n;
             let var = ((p2[b] - p2[a]) / n - mu * mu).max(0.0);
-            let ks = k as f64 * libm::sqrt(var);
-            let (lo, hi) = ((mu - ks) as f32, (mu + ks) as f32);
-            (lo.is_finite() && hi.is_finite()).then_some((lo, hi))
+            (mu.is_finite() && var.is_finite()).then_some((mu, var))
         };
     }
 }
 
 /// [`tile_bounds`] for one pixel (colours of more than [`TILE_CH`]
 /// channels).
-fn clamp_bounds<S: FloatElement>(
-    v: &View<'_, S>,
-    c: usize,
-    y: usize,
-    x: usize,
-    r: usize,
-    k: f32,
-) -> Option<(f32, f32)> {
+fn clamp_bounds<S: FloatElement>(v: &View<'_, S>, c: usize, y: usize, x: usize, r: usize) -> Option<(f64, f64)> {
     let mut one = [None; TILE];
-    tile_bounds(v, c, y, (x, x + 1), r, k, &mut one);
+    tile_bounds(v, c, y, (x, x + 1), r, &mut one);
     one[0]
+}
+
+/// `h` clamped to `mu -+ k sqrt(var + (floor h)^2)` (f64).
+#[inline]
+fn clamp_to(h: f64, (mu, var): (f64, f64), k: f64, floor: f64) -> f64 {
+    let ks = k * libm::sqrt(var + (floor * h) * (floor * h));
+    let (lo, hi) = (mu - ks, mu + ks);
+    if !(lo.is_finite() && hi.is_finite()) {
+        h
+    } else if h < lo {
+        lo
+    } else if h > hi {
+        hi
+    } else {
+        h
+    }
 }
 
 pub(crate) fn accumulate<S: FloatElement, A: Real>(
@@ -151,7 +157,7 @@ pub(crate) fn accumulate<S: FloatElement, A: Real>(
         for x in 0..w {
             if tiled && x % TILE == 0 {
                 for (c, b) in bounds.iter_mut().enumerate().take(ch) {
-                    tile_bounds(&inp.color, c, y, (x, (x + TILE).min(w)), r, p.clamp_sigma, b);
+                    tile_bounds(&inp.color, c, y, (x, (x + TILE).min(w)), r, b);
                 }
             }
             // Gather the reprojected colour and history.
@@ -229,17 +235,12 @@ pub(crate) fn accumulate<S: FloatElement, A: Real>(
                     }
                     let mut pv = pv * inv;
                     if clamp {
-                        let b = if tiled {
-                            bounds[c][x % TILE]
-                        } else {
-                            clamp_bounds(&inp.color, c, y, x, r, p.clamp_sigma)
-                        };
-                        if let Some((lo, hi)) = b {
-                            let f = pv.f32();
-                            if f < lo {
-                                pv = A::of(lo);
-                            } else if f > hi {
-                                pv = A::of(hi);
+                        let b = if tiled { bounds[c][x % TILE] } else { clamp_bounds(&inp.color, c, y, x, r) };
+                        if let Some(st) = b {
+                            let f = pv.f32() as f64;
+                            let g = clamp_to(f, st, p.clamp_sigma as f64, p.clamp_floor as f64);
+                            if g != f {
+                                pv = A::of(g as f32);
                             }
                         }
                     }
