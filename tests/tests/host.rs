@@ -99,9 +99,18 @@ fn static_frame(w: usize, h: usize, c: f32, pos_offset: f32) -> Frame {
 fn temporal_accumulation_follows_the_blend_recurrence() {
     let (w, h) = (9, 7);
     let colours = [1.0f32, 3.0, 0.5, 8.0, 2.0, 2.0, 7.0, 0.0, 1.0];
-    for isa in isas_under_test() {
-        let settings =
-            Settings { isa, threads: 2, precision: PrecisionKind::F32, phi_color: None, ..Settings::default() };
+    // Without the history clamp and with it (the default, width 1): a flat
+    // frame's window has no variance, so the history is clamped to
+    // `c -+ 0.5 h`, the floor.
+    for (isa, clamp) in isas_under_test().into_iter().flat_map(|i| [(i, 0.0f32), (i, 1.0)]) {
+        let settings = Settings {
+            isa,
+            threads: 2,
+            precision: PrecisionKind::F32,
+            phi_color: None,
+            ta_clamp: (clamp == 0.0).then_some(0.0),
+            ..Settings::default()
+        };
         let first = static_frame(w, h, colours[0], 0.0);
         let mut den = methods::create(MethodKind::Ta, &settings, &first).unwrap();
         let mut ctx = methods::context(&settings).unwrap();
@@ -114,11 +123,16 @@ fn temporal_accumulation_follows_the_blend_recurrence() {
                 acc = c as f64;
             } else {
                 let alpha = (1.0 / (n + 1.0)).max(0.2);
-                acc = alpha * c as f64 + (1.0 - alpha) * acc;
+                let (c, k) = (c as f64, clamp as f64);
+                let hist = if k > 0.0 { acc.clamp(c - k * 0.5 * acc.abs(), c + k * 0.5 * acc.abs()) } else { acc };
+                acc = alpha * c + (1.0 - alpha) * hist;
                 n += 1.0;
             }
             for v in &out {
-                assert!((*v as f64 - acc).abs() <= 1e-5 * acc.abs().max(1.0), "{isa:?} frame {i}: {v} vs {acc}");
+                assert!(
+                    (*v as f64 - acc).abs() <= 1e-5 * acc.abs().max(1.0),
+                    "{isa:?} clamp {clamp} frame {i}: {v} vs {acc}"
+                );
             }
         }
         // A frame whose geometry moved far away restarts every pixel.
