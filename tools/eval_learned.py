@@ -132,6 +132,11 @@ def main():
                     with open(os.path.join(od, last), 'rb') as src, \
                             open(os.path.join(keep, label.replace(' ', '_') + '.exr'), 'wb') as dst:
                         dst.write(src.read())
+                if j['mean']['psnr'] is None or any(f['psnr'] is None for f in j['files']):
+                    # A black reference scored against a black output: no
+                    # finite PSNR (`mcdenoise score` gives null).
+                    print('%-16s %-16s skipped: PSNR not finite (a black reference?)' % (seq, label), flush=True)
+                    continue
                 results[seq][label] = {'mean': j['mean'], 'psnr': [f['psnr'] for f in j['files']]}
                 print('%-16s %-16s PSNR %6.2f dB  SSIM %.4f  relMSE %.5f  flicker %s' % (
                     seq, label, j['mean']['psnr'], j['mean']['ssim'], j['mean']['relmse'], j['mean']['flicker']), flush=True)
@@ -143,6 +148,7 @@ def main():
                 out = os.path.join(a.output, 'sheet_%s.png' % seq)
                 run([sheet_py, os.path.join(HERE, 'contact_sheet.py'), out] + files + ['--cols', '4', '--scale', '2'])
                 print('%s: %s + reference' % (out, ', '.join(labels)), flush=True)
+    results = {seq: r for seq, r in results.items() if r}
     with open(os.path.join(a.output, 'quality.json'), 'w') as f:
         json.dump(results, f, indent=1)
     lines = []
