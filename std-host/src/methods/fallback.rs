@@ -101,6 +101,13 @@ pub fn plan(plan: &mut crate::methods::Plan, on: bool, pair: bool) {
     }
 }
 
+/// Turns the stage on or off in a plan that records it already, keeping
+/// where its noise comes from ([`plan`]'s `pair`).
+pub fn switch(plan: &mut crate::methods::Plan, on: bool) {
+    let pair = plan.built.contains(&STAGE_PAIR) || plan.skipped.iter().any(|(s, _)| *s == STAGE_PAIR);
+    self::plan(plan, on, pair);
+}
+
 /// The stage's name in plans (the noise from the image itself).
 pub const STAGE: &str = "fallback to the input";
 /// The stage's name in plans when the noise comes from the pair `A`, `B`.

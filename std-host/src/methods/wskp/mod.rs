@@ -478,9 +478,7 @@ impl<P: HostPrecision> Wskp<P> {
     /// ([`crate::methods::fallback`]; on unless told).
     pub fn with_fallback(mut self, on: bool) -> Self {
         self.fallback = on;
-        let pair = self.plan.built.contains(&crate::methods::fallback::STAGE_PAIR)
-            || self.plan.skipped.iter().any(|(s, _)| *s == crate::methods::fallback::STAGE_PAIR);
-        crate::methods::fallback::plan(&mut self.plan, on, pair);
+        crate::methods::fallback::switch(&mut self.plan, on);
         self
     }
 }
