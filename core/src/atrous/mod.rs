@@ -180,7 +180,7 @@ impl AtrousPrecision for Fixed {
         0
     }
     fn step_impl(
-        _chk: Checked,
+        chk: Checked,
         level: u32,
         groups: usize,
         with_variance: bool,
@@ -191,7 +191,7 @@ impl AtrousPrecision for Fixed {
         y0: usize,
         _scratch: &mut [f32],
     ) {
-        fixed::step(level, groups, with_variance, params, guides, src, dst, y0)
+        fixed::step(chk.isa(), level, groups, with_variance, params, guides, src, dst, y0)
     }
 }
 
