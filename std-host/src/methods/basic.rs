@@ -372,22 +372,26 @@ mod tests {
         assert!(ten < 0.5 * one, "ten frames average the noise down: {ten} against one frame's {one}");
     }
 
-    /// The weights' `ta_clamp`: the bundled WSKP-3 and AFN record 1, the
-    /// bundled WSKP-6 (made before the clamp) nothing and gets the default;
-    /// a file saying 0 turns it off; a bad value names the file.
+    /// The weights' `ta_clamp`: the bundled files record 1; a file saying
+    /// nothing (made before the clamp) gets the default; a file saying 0
+    /// turns it off; a bad value names the file.
     #[test]
     fn the_weights_say_which_clamp_they_were_trained_with() {
         use crate::nn::weights::{save_model, Form};
         let w3 = crate::methods::bundled::wskp(None, 3).unwrap();
         let w6 = crate::methods::bundled::wskp(None, 6).unwrap();
         let afn = crate::methods::bundled::afn(None).unwrap();
-        assert_eq!(ta_clamp_of(&w3).unwrap(), Some(1.0));
-        assert_eq!(ta_clamp_of(&afn).unwrap(), Some(1.0));
-        assert_eq!(ta_clamp_of(&w6).unwrap(), None);
-        assert_eq!(ta_clamp_for(&w6).unwrap(), TA_CLAMP);
+        for w in [&w3, &w6, &afn] {
+            assert_eq!(ta_clamp_of(w).unwrap(), Some(1.0));
+        }
         let dir = tempfile::tempdir().unwrap();
         let net = crate::methods::wskp::net_for(3, crate::methods::wskp::Sizes::ALL).unwrap();
         let params = vec![0.0f32; net.params];
+        let p = dir.path().join("old.safetensors");
+        save_model(&p, "wskp", &[("", &net, &params)], Form::Branches, &[], &[]).unwrap();
+        let old = crate::nn::weights::File::read(&p).unwrap();
+        assert_eq!(ta_clamp_of(&old).unwrap(), None);
+        assert_eq!(ta_clamp_for(&old).unwrap(), TA_CLAMP);
         for (v, want) in [("0", Ok(0.0f32)), ("2.5", Ok(2.5)), ("abc", Err(())), ("-1", Err(()))] {
             let p = dir.path().join(format!("w{v}.safetensors"));
             save_model(&p, "wskp", &[("", &net, &params)], Form::Branches, &[("ta_clamp", v.to_string())], &[])
