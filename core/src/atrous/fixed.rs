@@ -469,7 +469,6 @@ pub(crate) fn step(
     dispatch!(k, pixels, (&k, with_variance, g, src, dst, y0))
 }
 
-
 /// A pixel's guides as a tap reads them.
 #[inline(always)]
 fn px<const N: bool, const G: u8>(g: &AtrousGuides<'_, i16>, src: &View<'_, i16>, y: usize, x: usize) -> Px {
@@ -772,8 +771,10 @@ mod tests {
     /// reach the geometry caps, and rows wider than a strip.
     #[test]
     fn the_i64_step_is_the_i128_step() {
-        let isas: Vec<_> =
-            [crate::Isa::Scalar, crate::Isa::Avx2, crate::Isa::Avx512].into_iter().filter_map(|i| i.check().ok()).collect();
+        let isas: Vec<_> = [crate::Isa::Scalar, crate::Isa::Avx2, crate::Isa::Avx512]
+            .into_iter()
+            .filter_map(|i| i.check().ok())
+            .collect();
         let mut seed = 0x1234_5678_9abc_def1u64;
         for case in 0..24 {
             let (w, h) = if case % 5 == 4 { (300usize, 7usize) } else { (23, 19) };
