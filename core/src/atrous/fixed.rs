@@ -245,6 +245,7 @@ fn div_floor_capped<const FLOAT: bool>(num: i64, den: i64, cap: i64) -> i64 {
 /// `num / den` truncated toward zero (`den > 0`, `|num| < 2^50`), as `i64`
 /// division gives it.
 #[inline(always)]
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))] // the SIMD rows only
 fn div_trunc<const FLOAT: bool>(num: i64, den: i64) -> i64 {
     let q = div_floor_capped::<FLOAT>(num.abs(), den, i64::MAX >> 14);
     if num < 0 {
@@ -256,6 +257,7 @@ fn div_trunc<const FLOAT: bool>(num: i64, den: i64) -> i64 {
 
 /// [`div_round`] (half away from zero; `b > 0`, `|a| + b < 2^50`).
 #[inline(always)]
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))] // the SIMD rows only
 fn div_round_f<const FLOAT: bool>(a: i64, b: i64) -> i64 {
     let q = div_floor_capped::<FLOAT>(a.abs() + b / 2, b, i64::MAX >> 14);
     if a < 0 {
