@@ -224,6 +224,7 @@ fn grad_weights_scalar(k: usize, x: &View<'_, f32>, dz: &View<'_, f32>, y0: usiz
 const ROW_TILE: usize = 8;
 
 /// The output-channel blocks: near-equal sizes of at most `max`.
+#[cfg(target_arch = "x86_64")]
 fn blocks(cout: usize, max: usize) -> impl Iterator<Item = (usize, usize)> {
     let n = cout.div_ceil(max);
     (0..n).scan(0, move |co0, b| {

@@ -3,6 +3,7 @@
 use super::{AtrousGuides, AtrousParams, B3};
 use crate::precision::FloatElement;
 use crate::view::{View, ViewMut};
+#[cfg(target_arch = "x86_64")]
 use crate::Isa;
 
 pub(crate) mod scalar;

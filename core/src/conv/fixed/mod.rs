@@ -6,6 +6,7 @@
 use crate::conv::{Activation, Conv2d};
 use crate::fixed::{ld, sat16, shr_round, KERNEL_FRAC};
 use crate::view::{View, ViewMut};
+#[cfg(target_arch = "x86_64")]
 use crate::Isa;
 
 pub(crate) mod scalar;

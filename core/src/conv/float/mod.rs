@@ -3,6 +3,7 @@
 use super::Conv2d;
 use crate::precision::FloatElement;
 use crate::view::{View, ViewMut};
+#[cfg(target_arch = "x86_64")]
 use crate::Isa;
 
 pub(crate) mod scalar;

@@ -10,6 +10,7 @@ use super::{clamp_logit, FusedInputs, WindowPath, MAX_CHANNELS, MAX_FUSED};
 use crate::precision::FloatElement;
 use crate::real::Real;
 use crate::view::{View, ViewMut};
+#[cfg(target_arch = "x86_64")]
 use crate::Isa;
 
 pub(crate) mod scalar;

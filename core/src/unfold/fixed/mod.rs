@@ -5,6 +5,7 @@
 //! Taps pair up in order `(0, 1), (2, 3), ...`; an odd last tap pairs with 0.
 
 use crate::view::{View, ViewMut};
+#[cfg(target_arch = "x86_64")]
 use crate::Isa;
 
 pub(crate) mod scalar;

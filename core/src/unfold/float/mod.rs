@@ -2,6 +2,7 @@
 
 use crate::precision::FloatElement;
 use crate::view::{View, ViewMut};
+#[cfg(target_arch = "x86_64")]
 use crate::Isa;
 
 pub(crate) mod scalar;
