@@ -56,13 +56,16 @@ def methods(weights):
     if os.path.exists(w('wskp6.safetensors')):
         for p in ('f32', 'f16', 'fixed'):
             m.append(('wskp6 ' + p, 'mcd', ['--method', 'wskp', '--layers', '6', '--weights', w('wskp6.safetensors'), '--precision', p]))
+        m.append(('wskp6 int8', 'mcd', ['--method', 'wskp', '--layers', '6', '--weights', w('wskp6.safetensors'), '--emulate-int8']))
     if os.path.exists(w('wskp3.safetensors')):
         for p in ('f32', 'f16', 'fixed'):
             m.append(('wskp3 ' + p, 'mcd', ['--method', 'wskp', '--layers', '3', '--weights', w('wskp3.safetensors'), '--precision', p]))
+        m.append(('wskp3 int8', 'mcd', ['--method', 'wskp', '--layers', '3', '--weights', w('wskp3.safetensors'), '--emulate-int8']))
     if os.path.exists(w('afn.safetensors')):
         m.append(('afn no-refine', 'mcd', ['--method', 'afn', '--weights', w('afn.safetensors'), '--no-refine']))
         for p in ('f32', 'f16', 'fixed'):
             m.append(('afn ' + p, 'mcd', ['--method', 'afn', '--weights', w('afn.safetensors'), '--precision', p]))
+        m.append(('afn int8', 'mcd', ['--method', 'afn', '--weights', w('afn.safetensors'), '--emulate-int8']))
     # The paper's ablation (its Table 11): the same network trained on one
     # input only (`mcdenoise train --method afn --variant ...`), with its
     # refinement as trained.

@@ -16,6 +16,9 @@
 #   TA_CLAMP=1                 the accumulation's history clamp (mcdenoise train --ta-clamp; 0: off,
 #                              as the weights of before it: resume their checkpoints with 0)
 #   TRAIN=DIR VAL=DIR          other training / validation directories (default DATA/train, DATA/val)
+#   INIT=DIR                   fine-tune: start each model from DIR/MODEL.safetensors (a new cosine
+#                              schedule from step 0; a checkpoint in OUT still resumes first)
+#   LR=1e-3                    Adam's peak learning rate (a fine-tune: lower, e.g. 3e-4)
 #   also: afn-ta-only, afn-1spp-only (AFN's ablation, 5000 steps each)
 # The training data is DATA/train (every complete sequence), the validation
 # DATA/val; DATA/test is never read here.
@@ -34,7 +37,7 @@ VAL="${VAL:-$DATA/val}"
 [ -d "$TRAIN" ] || { echo "no $TRAIN: run bash tools/render-train.sh $DATA first" >&2; exit 1; }
 mkdir -p "$OUT"
 common=(--data "$TRAIN" --val "$VAL" --batch 8 --crop 128 --threads "$THREADS" --seed 1
-    --checkpoint-minutes 5 --lr-schedule cosine --clip "${CLIP:-0.5}" --loss "${LOSS:-l1-log}"
+    --checkpoint-minutes 5 --lr-schedule cosine --lr "${LR:-1e-3}" --clip "${CLIP:-0.5}" --loss "${LOSS:-l1-log}"
     --ta-clamp "${TA_CLAMP:-1}")
 for m in $MODELS; do
     case "$m" in
@@ -48,6 +51,7 @@ for m in $MODELS; do
     w="$OUT/$m.safetensors"
     resume=()
     [ -f "$w.ckpt" ] && resume=(--resume "$w.ckpt")
+    [ -n "${INIT:-}" ] && [ -f "$INIT/$m.safetensors" ] && resume+=(--init "$INIT/$m.safetensors")
     echo "[train-all] $m: ${args[*]} ${resume[*]}"
     "$BIN" train "${common[@]}" "${args[@]}" "${resume[@]}" --log "$OUT/$m.log.csv" -o "$w" 2>&1 | tee "$OUT/$m.train.txt"
     rm -f "$w.ckpt"

@@ -359,6 +359,11 @@ struct SettingsCli {
     /// streaming saves; counted in the memory estimate)
     #[arg(long, help_heading = "Learned methods")]
     afn_whole_maps: bool,
+    /// WSKP, AFN: emulate 8-bit networks (weights i8 per output channel, activations u8/i8 per
+    /// tensor from the first frame's ranges; --precision f32 or f16). Measures what an 8-bit (VNNI)
+    /// mode would cost in accuracy; it is not faster
+    #[arg(long, help_heading = "Learned methods")]
+    emulate_int8: bool,
 }
 
 /// The `layers` recorded in a WSKP weights file, or 6 (no file, another
@@ -394,6 +399,7 @@ impl SettingsCli {
         s.cross_lr = self.cross_lr;
         s.cross_spatial_only = self.cross_spatial_only;
         s.afn_whole_maps = self.afn_whole_maps;
+        s.emulate_int8 = self.emulate_int8;
         s
     }
 }
@@ -593,6 +599,10 @@ struct TrainCli {
     /// Continue from a checkpoint (WEIGHTS.ckpt)
     #[arg(long, value_name = "CKPT")]
     resume: Option<PathBuf>,
+    /// Start from trained weights of the same model (fine-tuning): a new run from step 0 with its own
+    /// schedule and optimiser state; --resume, when given, takes precedence
+    #[arg(long, value_name = "WEIGHTS")]
+    init: Option<PathBuf>,
     /// Minutes between checkpoints
     #[arg(long, value_name = "F", default_value = "5", value_parser = minutes)]
     checkpoint_minutes: f64,
@@ -768,6 +778,7 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
                 a.isa = i.isa();
             }
             a.resume = t.resume;
+            a.init = t.init;
             a.checkpoint_minutes = t.checkpoint_minutes;
             a.log = t.log;
             a.variant = t.variant;

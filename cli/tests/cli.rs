@@ -645,3 +645,21 @@ fn precision_report_without_references() {
         .unwrap();
     assert_fails(&out, 2, "nowhere");
 }
+
+/// `--emulate-int8` is for the networks in a float precision: with a method
+/// that has none, or in fixed point, it is refused by name and nothing is
+/// written.
+#[test]
+fn emulate_int8_is_refused_where_it_means_nothing() {
+    let t = tempfile::tempdir().unwrap();
+    let frame = Path::new(env!("CARGO_MANIFEST_DIR")).join("../samples/frame_0000.exr");
+    let o = t.path().join("o");
+    let run = |args: &[&str]| bin().args(["denoise"]).args(args).arg(&frame).arg("-o").arg(&o).output().unwrap();
+    assert_fails(&run(&["--method", "atrous", "--emulate-int8"]), 2, "--emulate-int8: atrous has no network");
+    assert_fails(
+        &run(&["--method", "wskp", "--precision", "fixed", "--emulate-int8"]),
+        2,
+        "--emulate-int8 runs in a float precision",
+    );
+    assert!(!o.exists() || std::fs::read_dir(&o).unwrap().next().is_none(), "nothing written");
+}

@@ -138,3 +138,75 @@ fn afn_streamed_inference_equals_its_training_forward() {
         assert!(d < 1e-4, "{variant:?}: AFN's inference differs from its training forward by {d:e}");
     }
 }
+
+/// The 8-bit emulation's weights: per output channel, 255 levels symmetric
+/// about 0 whose step is the channel's largest magnitude over 127, each
+/// weight moved by at most half a step, the largest kept.
+#[test]
+fn int8_weights_are_on_each_channels_grid() {
+    let per = 9 * 5;
+    let mut w: Vec<f32> = Img::random(1, per, 4, -0.7, 0.7, 21).data;
+    // One channel of tiny weights, one of zeros: each has its own scale.
+    w[per..2 * per].iter_mut().for_each(|v| *v *= 1e-4);
+    w[2 * per..3 * per].iter_mut().for_each(|v| *v = 0.0);
+    let orig = w.clone();
+    mcdenoise::nn::infer::int8_weights(&mut w, per);
+    for (ch, (q, o)) in w.chunks(per).zip(orig.chunks(per)).enumerate() {
+        let m = o.iter().fold(0.0f64, |m, &v| m.max(v.abs() as f64));
+        if m == 0.0 {
+            assert!(q.iter().all(|&v| v == 0.0), "channel {ch}: zeros stay zeros");
+            continue;
+        }
+        let step = m / 127.0;
+        let qm = q.iter().fold(0.0f64, |a, &v| a.max(v.abs() as f64));
+        assert!((qm - m).abs() <= 1e-6 * m, "channel {ch}: the largest weight is kept");
+        for (&a, &b) in q.iter().zip(o) {
+            let k = a as f64 / step;
+            assert!((k - k.round()).abs() < 1e-3 && k.abs() <= 127.0 + 1e-3, "channel {ch}: {a} is not on the grid");
+            assert!((a as f64 - b as f64).abs() <= 0.5 * step * (1.0 + 1e-4), "channel {ch}: {b} -> {a}");
+        }
+    }
+}
+
+/// The 8-bit emulation of a network: every tensor it rounds sits on its
+/// grid (the output too when it is not kept), the output stays near f32's,
+/// and fixed point refuses it.
+#[test]
+fn int8_emulation_rounds_every_tensor_to_its_grid() {
+    let (w, h) = (36, 28);
+    let mut ctx = Ctx::new(2, Isa::detect()).unwrap();
+    for (name, net) in [("wskp-3", wskp::net(3).unwrap()), ("afn refinement", afn::refine_net().unwrap())] {
+        let params: Vec<f32> = net.init(11).iter().map(|v| v * 0.5).collect();
+        let x = Img::random(net.desc.cin, w, h, -1.0, 1.0, 3).data;
+        let input = || Planes::<f32>::from_vec(net.desc.cin, w, h, x.clone());
+        let mut f32net = Inference::<F32>::new(&net, &params, None, None).unwrap();
+        let ranges = f32net.ranges(&mut ctx, input()).unwrap();
+        let exact = f32net.run(&mut ctx, input()).unwrap().data.to_vec();
+        // The output rounded too: its values are multiples of its step.
+        let mut q = Inference::<F32>::new(&net, &params, None, None).unwrap();
+        q.emulate_int8(&ranges, false).unwrap();
+        let out = q.run(&mut ctx, input()).unwrap().data.to_vec();
+        let step = *ranges.last().unwrap() as f64 / 127.0;
+        let distinct: std::collections::BTreeSet<i64> = out
+            .iter()
+            .map(|&v| {
+                let k = v as f64 / step;
+                assert!(
+                    (k - k.round()).abs() < 1e-3 && k.abs() <= 127.0 + 1e-3,
+                    "{name}: {v} is off the output's grid"
+                );
+                k.round() as i64
+            })
+            .collect();
+        assert!(distinct.len() > 10 && distinct.len() <= 255, "{name}: {} levels", distinct.len());
+        // Kept: near the f32 output (8 bits per layer), but not equal.
+        let mut k = Inference::<F32>::new(&net, &params, None, None).unwrap();
+        k.emulate_int8(&ranges, true).unwrap();
+        let kept = k.run(&mut ctx, input()).unwrap().data.to_vec();
+        let d = rel_diff(&kept, &exact);
+        eprintln!("{name}: 8-bit emulation against f32, largest difference {d:.2e} of the peak");
+        assert!(d > 1e-5 && d < 0.1, "{name}: the emulation moved the output by {d:e} of its peak");
+        let mut fx = Inference::<mcdenoise_core::Fixed>::new(&net, &params, Some(&ranges), None).unwrap();
+        assert!(fx.emulate_int8(&ranges, true).is_err(), "{name}: fixed point refuses the emulation");
+    }
+}

@@ -215,6 +215,9 @@ pub struct Settings {
     /// streaming them in bands (for measuring what streaming saves; counted
     /// in the memory estimate).
     pub afn_whole_maps: bool,
+    /// WSKP and AFN: emulate 8-bit networks (weights and activations
+    /// rounded to `i8`/`u8`; float precisions only), to measure their error.
+    pub emulate_int8: bool,
 }
 
 impl Default for Settings {
@@ -236,6 +239,7 @@ impl Default for Settings {
             cross_lr: crate::methods::cross::LR,
             cross_spatial_only: false,
             afn_whole_maps: false,
+            emulate_int8: false,
         }
     }
 }
@@ -302,6 +306,9 @@ impl Denoiser for OneSize {
 }
 
 fn create_unchecked(kind: MethodKind, settings: &Settings, first: &Frame) -> Result<Box<dyn Denoiser>> {
+    if settings.emulate_int8 && !matches!(kind, MethodKind::Wskp | MethodKind::Afn) {
+        return Err(HostError::Usage(format!("--emulate-int8: {} has no network to emulate (wskp, afn)", kind.name())));
+    }
     if kind == MethodKind::Cross {
         // Trained online in f32 whatever the storage precision asked for.
         let mut c = crate::methods::cross::Cross::new(
@@ -337,8 +344,9 @@ fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Fr
         MethodKind::SureAtrous => Box::new(Atrous::<P>::new(first, true, settings)?),
         MethodKind::Wskp => {
             let file = crate::methods::bundled::wskp(settings.weights.as_deref(), settings.layers)?;
-            let mut m =
-                crate::methods::wskp::Wskp::<P>::new(first, &file, settings.layers)?.with_fallback(settings.fallback);
+            let mut m = crate::methods::wskp::Wskp::<P>::new(first, &file, settings.layers)?
+                .with_fallback(settings.fallback)
+                .with_int8(settings.emulate_int8)?;
             if let Some(k) = settings.ta_clamp {
                 m = m.with_ta_clamp(k)?;
             }
@@ -348,7 +356,8 @@ fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Fr
             let file = crate::methods::bundled::afn(settings.weights.as_deref())?;
             let mut m = crate::methods::afn::Afn::<P>::new(first, &file, settings.refine)?
                 .with_whole_maps(settings.afn_whole_maps)
-                .with_fallback(settings.fallback);
+                .with_fallback(settings.fallback)
+                .with_int8(settings.emulate_int8)?;
             if let Some(k) = settings.ta_clamp {
                 m = m.with_ta_clamp(k)?;
             }

@@ -36,6 +36,32 @@ pub struct Inference<P: HostPrecision> {
     /// The frame size of the last run.
     size: (usize, usize),
     last_use: Vec<usize>,
+    /// The 8-bit emulation ([`Inference::emulate_int8`]): per tensor, the
+    /// step and the integer bounds its values are rounded to (None: kept).
+    int8: Option<Vec<Option<(f32, f32, f32)>>>,
+}
+
+/// Rounds `data` to multiples of `step` between `lo` and `hi` steps.
+fn fake_quantise<P: HostPrecision>(data: &mut [P::Store], (step, lo, hi): (f32, f32, f32)) {
+    let mut v = vec![0.0f32; data.len()];
+    P::decode(data, &mut v, 0);
+    for x in &mut v {
+        *x = (*x / step).round().clamp(lo, hi) * step;
+    }
+    P::encode(&v, data, 0);
+}
+
+/// Rounds each output channel's `per` weights to 255 levels symmetric
+/// about 0 (`i8` in [-127, 127] times the channel's own scale), as an
+/// 8-bit convolution stores them.
+pub fn int8_weights(w: &mut [f32], per: usize) {
+    for ch in w.chunks_mut(per.max(1)) {
+        let m = ch.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        if m > 0.0 && m.is_finite() {
+            let s = m / 127.0;
+            ch.iter_mut().for_each(|v| *v = (*v / s).round().clamp(-127.0, 127.0) * s);
+        }
+    }
 }
 
 /// The node after which each tensor is read no more (the outputs: never,
@@ -179,7 +205,60 @@ impl<P: HostPrecision> Inference<P> {
             free: Vec::new(),
             size: (0, 0),
             last_use,
+            int8: None,
         })
+    }
+
+    /// Emulates an 8-bit network, in a float precision: each conv's
+    /// weights are rounded to `i8` with a scale per output channel
+    /// ([`int8_weights`]), and each tensor to `u8` (after a ReLU, where no
+    /// value is negative) or `i8` with one scale per tensor set by its
+    /// largest magnitude in `ranges` ([`Inference::ranges`] on a first
+    /// frame; larger values saturate). These are the values a `u8 x i8 ->
+    /// i32` convolution (VNNI's `vpdpbusd`) computes with; biases and the
+    /// sums stay exact. `keep_last`: the network's output keeps its
+    /// precision (a requantisation of the `i32` sums to 16 bits costs the
+    /// same). For measuring what 8 bits cost, not for speed: the arithmetic
+    /// is still the precision's.
+    pub fn emulate_int8(&mut self, ranges: &[f32], keep_last: bool) -> Result<()> {
+        let nt = self.net.tensors.len();
+        if P::FIXED_POINT || ranges.len() != nt {
+            return Err(HostError::Usage(
+                "the 8-bit emulation runs in a float precision, with one range per tensor".into(),
+            ));
+        }
+        let mut nonneg = vec![false; nt];
+        for node in &self.net.nodes {
+            match *node {
+                Node::Conv { conv: i, out, .. } => {
+                    nonneg[out] = matches!(self.net.convs[i].spec.act, conv::Activation::Relu)
+                }
+                Node::Pool { x, out, .. } | Node::Up { x, out, .. } => nonneg[out] = nonneg[x],
+                Node::Concat { a, b, out } => nonneg[out] = nonneg[a] && nonneg[b],
+            }
+        }
+        for (i, c) in self.net.convs.iter().enumerate() {
+            let wt = &mut self.weights[i];
+            let mut v = vec![0.0f32; wt.w.len()];
+            P::decode(&wt.w, &mut v, 0);
+            int8_weights(&mut v, c.cin * c.k() * c.k());
+            P::encode(&v, &mut wt.w, 0);
+        }
+        self.int8 = Some(
+            (0..nt)
+                .map(|t| {
+                    let r = ranges[t];
+                    if (keep_last && t == nt - 1) || !(r > 0.0 && r.is_finite()) {
+                        None
+                    } else if nonneg[t] {
+                        Some((r / 255.0, 0.0, 255.0))
+                    } else {
+                        Some((r / 127.0, -127.0, 127.0))
+                    }
+                })
+                .collect(),
+        );
+        Ok(())
     }
 
     /// Output `k` of the last run (in the network's output order).
@@ -237,6 +316,25 @@ impl<P: HostPrecision> Inference<P> {
             self.free.clear();
             self.size = (w, h);
         }
+        // The 8-bit emulation rounds the input too: a rounded copy.
+        let q_in = match self.int8.as_ref().and_then(|q| q[0]) {
+            Some(q) => {
+                let mut p = Planes::<P::Store>::new(input.channels(), w, h);
+                for ch in 0..input.channels() {
+                    for y in 0..h {
+                        let o = (ch * h + y) * w;
+                        p.data[o..o + w].copy_from_slice(input.row(ch, y));
+                    }
+                }
+                fake_quantise::<P>(&mut p.data, q);
+                Some(p)
+            }
+            None => None,
+        };
+        let input = match &q_in {
+            Some(p) => p.view(),
+            None => input,
+        };
         let isa = ctx.isa;
         let nodes = self.net.nodes.clone();
         for (n, node) in nodes.iter().enumerate() {
@@ -315,6 +413,9 @@ impl<P: HostPrecision> Inference<P> {
                         }
                     }
                 }
+            }
+            if let Some(q) = self.int8.as_ref().and_then(|q| q[out_t]) {
+                fake_quantise::<P>(&mut out.data, q);
             }
             self.bufs[out_t] = Some(out);
             for t in 0..self.bufs.len() {

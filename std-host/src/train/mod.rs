@@ -71,6 +71,10 @@ pub struct TrainArgs {
     pub isa: Isa,
     /// Continue from a checkpoint.
     pub resume: Option<PathBuf>,
+    /// Start from these weights (a weights file of the same model): a new
+    /// run (step 0, its own schedule, fresh optimiser state) that fine-tunes
+    /// them; `resume` takes precedence.
+    pub init: Option<PathBuf>,
     /// Minutes between checkpoints.
     pub checkpoint_minutes: f64,
     /// Steps between validations (0: only at the end).
@@ -147,6 +151,7 @@ impl Default for TrainArgs {
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
             isa: Isa::detect(),
             resume: None,
+            init: None,
             checkpoint_minutes: 5.0,
             val_every: 500,
             log: None,
@@ -584,6 +589,18 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     let (mut step, mut rng) = (0u64, Rng::new(a.seed.wrapping_add(1)));
     let mut adam_state = None;
     let mut seconds_before = 0.0f64;
+    if let (None, Some(w)) = (&a.resume, &a.init) {
+        let f = File::read(w)?;
+        params = model.load(&f, &nets)?;
+        let trained = crate::methods::ta_clamp_of(&f)?.unwrap_or(0.0);
+        if trained != a.ta_clamp {
+            return Err(HostError::bad(
+                w,
+                format!("these weights' inputs were made with --ta-clamp {trained}; fine-tune them with that value"),
+            ));
+        }
+        eprintln!("initialised from {}", w.display());
+    }
     if let Some(r) = &a.resume {
         let f = File::read(r)?;
         params = model.load(&f, &nets)?;

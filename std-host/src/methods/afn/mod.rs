@@ -452,6 +452,8 @@ pub struct Afn<P: HostPrecision> {
     whole_maps: bool,
     /// With the fallback to the input ([`crate::methods::fallback`]).
     fallback: bool,
+    /// The networks emulated in 8 bits ([`Inference::emulate_int8`]).
+    int8: bool,
 }
 
 /// The networks ready to run in `P`: the kernel predictor without its
@@ -630,7 +632,19 @@ impl<P: HostPrecision> Afn<P> {
             bufs: None,
             whole_maps: false,
             fallback: true,
+            int8: false,
         })
+    }
+
+    /// Emulates 8-bit networks ([`Inference::emulate_int8`]): the kernel
+    /// predictor (its head too) and the refinement, ranges from the first
+    /// frame. Float precisions only: it measures what 8 bits cost.
+    pub fn with_int8(mut self, on: bool) -> Result<Self> {
+        if on && P::FIXED_POINT {
+            return Err(HostError::Usage("--emulate-int8 runs in a float precision (f32, f16)".into()));
+        }
+        self.int8 = on;
+        Ok(self)
     }
 
     /// Holds the full-scale logits and kernels whole instead of streaming
@@ -682,7 +696,7 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
             let last = *self.kernel_net.convs.last().expect("the head is a conv");
             let (bp, hp) = self.params.0.split_at(head_at);
             let (hw, hb) = hp.split_at(last.spec.cout * last.cin);
-            let (br, rr) = if P::FIXED_POINT {
+            let (br, rr) = if P::FIXED_POINT || self.int8 {
                 // The formats from an f32 run on the first frame.
                 let t0 = std::time::Instant::now();
                 let mut k32 = Inference::<F32>::new(&body, bp, None, None)?;
@@ -704,16 +718,23 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
             let head_frac = P::frac_or_zero(crate::nn::quant::weight_frac(hw, last.cin));
             let logit_frac = P::frac_or_zero(mcdenoise_core::fixed::LOGIT_FRAC);
             let mut head_w = vec![P::Store::default(); hw.len()];
-            P::encode(hw, &mut head_w, head_frac);
+            if self.int8 {
+                let mut q = hw.to_vec();
+                crate::nn::infer::int8_weights(&mut q, last.cin);
+                P::encode(&q, &mut head_w, head_frac);
+            } else {
+                P::encode(hw, &mut head_w, head_frac);
+            }
             let mut head_b = vec![P::Store::default(); hb.len()];
             P::encode(hb, &mut head_b, logit_frac);
-            self.infer = Some(Infer {
-                body: Inference::<P>::new(&body, bp, br.as_deref(), None)?,
-                head_w,
-                head_b,
-                head_frac,
-                refine: Inference::<P>::new(&self.refine_net, &self.params.1, rr.as_deref(), None)?,
-            });
+            let mut body = Inference::<P>::new(&body, bp, br.as_deref(), None)?;
+            let mut refine = Inference::<P>::new(&self.refine_net, &self.params.1, rr.as_deref(), None)?;
+            if let (true, Some(br), Some(rr)) = (self.int8, &br, &rr) {
+                // The body's output is the head's input: rounded too.
+                body.emulate_int8(br, false)?;
+                refine.emulate_int8(rr, true)?;
+            }
+            self.infer = Some(Infer { body, head_w, head_b, head_frac, refine });
         }
         let inf = self.infer.as_mut().expect("just built");
         let xin = t.time("encode", || {

@@ -356,6 +356,8 @@ pub struct Wskp<P: HostPrecision> {
     stored: Option<Stored<P::Store>>,
     /// With the fallback to the input ([`crate::methods::fallback`]).
     fallback: bool,
+    /// The network emulated in 8 bits ([`Inference::emulate_int8`]).
+    int8: bool,
 }
 
 /// The network input, radiance and albedo stored in a precision other than f32.
@@ -471,7 +473,18 @@ impl<P: HostPrecision> Wskp<P> {
             _ => "fused importance filter (the weights' sizes metadata)",
         });
         crate::methods::fallback::plan(&mut plan, true, first.has(crate::io::frame::Buffer::ColorB));
-        Ok(Wskp { plan, sizes, net, params, ta, infer: None, bufs: None, stored: None, fallback: true })
+        Ok(Wskp { plan, sizes, net, params, ta, infer: None, bufs: None, stored: None, fallback: true, int8: false })
+    }
+
+    /// Emulates an 8-bit ImportanceNet ([`Inference::emulate_int8`]): its
+    /// weights and tensors rounded to `i8`/`u8`, ranges from the first frame.
+    /// Float precisions only: it measures what 8 bits cost.
+    pub fn with_int8(mut self, on: bool) -> Result<Self> {
+        if on && P::FIXED_POINT {
+            return Err(HostError::Usage("--emulate-int8 runs in a float precision (f32, f16)".into()));
+        }
+        self.int8 = on;
+        Ok(self)
     }
 
     /// With or without the fallback to the input
@@ -516,7 +529,7 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
         })?;
         if self.infer.is_none() {
             // Fixed point: the formats from an f32 run on the first frame.
-            let ranges = if P::FIXED_POINT {
+            let ranges = if P::FIXED_POINT || self.int8 {
                 t.time("fixed-point formats (first frame)", || -> Result<_> {
                     let mut f32net = Inference::<F32>::new(&self.net, &self.params, None, None)?;
                     Ok(Some(f32net.ranges(ctx, Planes::<f32>::from_vec(10, w, h, bufs.x.clone()))?))
@@ -525,7 +538,11 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
                 None
             };
             let logit_frac = Some(mcdenoise_core::fixed::LOGIT_FRAC);
-            self.infer = Some(Inference::<P>::new(&self.net, &self.params, ranges.as_deref(), logit_frac)?);
+            let mut inf = Inference::<P>::new(&self.net, &self.params, ranges.as_deref(), logit_frac)?;
+            if let (true, Some(r)) = (self.int8, &ranges) {
+                inf.emulate_int8(r, true)?;
+            }
+            self.infer = Some(inf);
         }
         let infer = self.infer.as_mut().expect("just built");
         // The filter's inputs and output in the precision (the f32 buffers
