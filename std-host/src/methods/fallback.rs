@@ -134,16 +134,27 @@ pub fn to_input(
     }
     let e = if exposure > 0.0 && exposure.is_finite() { exposure } else { 1.0 };
     let log = |v: f32| if v.is_finite() { (e * v).max(0.0).ln_1p() } else { 0.0 };
-    let ly: Vec<f32> = y.iter().map(|&v| log(v)).collect();
+    // (Per-pixel passes run in runs of pixels on the pool.)
+    const RUN: usize = 1 << 14;
+    let mut ly = vec![0.0f32; 3 * n];
+    ctx.pool.planes(vec![&mut ly[..]], RUN, |start, runs| {
+        for (o, &v) in runs[0].iter_mut().zip(&y[start..]) {
+            *o = log(v);
+        }
+    });
+    let ly = &ly;
     let mut raw = vec![0.0f32; n];
     match pair {
         Some(b) if b.len() == 3 * n => {
-            for (i, r) in raw.iter_mut().enumerate() {
-                *r = (0..3).map(|c| pair_variance(ly[c * n + i], log(b[c * n + i]))).sum::<f32>() / 3.0;
-            }
+            ctx.pool.planes(vec![&mut raw[..]], RUN, |start, runs| {
+                for (j, r) in runs[0].iter_mut().enumerate() {
+                    let i = start + j;
+                    *r = (0..3).map(|c| pair_variance(ly[c * n + i], log(b[c * n + i]))).sum::<f32>() / 3.0;
+                }
+            });
         }
         _ => {
-            let src = View::new(&ly, 3, w, h)?;
+            let src = View::new(ly, 3, w, h)?;
             let (pool, scratch) = (&ctx.pool, &mut ctx.scratch);
             pool.bands(ViewMut::new(&mut raw, 1, w, h)?, 16, scratch, 0, |b, y0, _| {
                 noise::local_noise_rows(&src, b, y0)
@@ -151,18 +162,26 @@ pub fn to_input(
         }
     }
     let fin = |v: f32| if v.is_finite() { v.min(1e12) } else { 1e12 };
-    for v in raw.iter_mut() {
-        *v = fin(*v);
-    }
+    ctx.pool.planes(vec![&mut raw[..]], RUN, |_, runs| {
+        for v in runs[0].iter_mut() {
+            *v = fin(*v);
+        }
+    });
     // The frame's noise level: the median over the pixels of the 7x7
     // window mean of the estimate (per channel). A 1-spp frame ends here.
     let level = {
         let mut m = raw.clone();
         crate::methods::features::box_sum(&mut m, w, h, RADIUS);
         let span = |p: usize, len: usize| ((p + RADIUS).min(len - 1) - p.saturating_sub(RADIUS) + 1) as f32;
-        for (i, v) in m.iter_mut().enumerate() {
-            *v /= span(i % w, w) * span(i / w, h);
-        }
+        // Runs of whole rows.
+        ctx.pool.planes(vec![&mut m[..]], w * 16, |start, runs| {
+            for (r, row) in runs[0].chunks_mut(w).enumerate() {
+                let sy = span(start / w + r, h);
+                for (x, v) in row.iter_mut().enumerate() {
+                    *v /= span(x, w) * sy;
+                }
+            }
+        });
         *m.select_nth_unstable_by(n / 2, |a, b| a.total_cmp(b)).1
     };
     let s = fade(level);
@@ -171,13 +190,19 @@ pub fn to_input(
     }
     // The squared difference in the same colour, summed over the channels.
     let mut err = vec![0.0f32; n];
-    for (i, e) in err.iter_mut().enumerate() {
-        let mut d2 = 0.0f32;
-        for c in 0..3 {
-            let d = log(o[c * n + i]) - ly[c * n + i];
-            d2 += d * d;
-        }
-        *e = fin(d2);
+    {
+        let o: &[f32] = o;
+        ctx.pool.planes(vec![&mut err[..]], RUN, |start, runs| {
+            for (j, e) in runs[0].iter_mut().enumerate() {
+                let i = start + j;
+                let mut d2 = 0.0f32;
+                for c in 0..3 {
+                    let d = log(o[c * n + i]) - ly[c * n + i];
+                    d2 += d * d;
+                }
+                *e = fin(d2);
+            }
+        });
     }
     // Window sums over the pixels of the same albedo as the centre (within
     // ALBEDO_TOL of the larger, per channel): a light's partially covered
@@ -208,19 +233,20 @@ pub fn to_input(
             *k = blend_weight(3.0 * vs, es, vs / cnt.max(1.0));
         }
     });
-    for k in ks.iter_mut() {
-        *k += s * (1.0 - *k);
-    }
-    for i in 0..n {
-        let k = ks[i];
-        for c in 0..3 {
-            let (yv, ov) = (y[c * n + i], o[c * n + i]);
-            let out = yv + k * (ov - yv);
-            if out.is_finite() {
-                o[c * n + i] = out.max(0.0);
+    let ks = &ks;
+    ctx.pool.planes(o[..3 * n].chunks_mut(n).collect(), RUN, |start, runs| {
+        for (c, run) in runs.iter_mut().enumerate() {
+            for (j, ov) in run.iter_mut().enumerate() {
+                let i = start + j;
+                let k = ks[i] + s * (1.0 - ks[i]);
+                let yv = y[c * n + i];
+                let out = yv + k * (*ov - yv);
+                if out.is_finite() {
+                    *ov = out.max(0.0);
+                }
             }
         }
-    }
+    });
     Ok(())
 }
 

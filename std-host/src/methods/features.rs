@@ -310,22 +310,26 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
     let floor = EXCESS_FLOOR / if exposure > 0.0 && exposure.is_finite() { exposure } else { 1.0 };
     // keep0 = 1 - w, or the part of a pixel a thin emitter covers (its
     // albedo well under its neighbours'), then the 3x3 maximum.
-    let amax: Vec<f32> = (0..n).map(|p| albedo[p].max(albedo[n + p]).max(albedo[2 * n + p]).clamp(0.0, 1.0)).collect();
-    let none: Vec<f32> = (0..n).map(|p| 1.0 - albedo_weight([albedo[p], albedo[n + p], albedo[2 * n + p]])).collect();
-    // (Each neighbourhood pass writes its planes in runs of pixels on
-    // `pool`, reading only planes made before it.)
+    // (Each pass writes its planes in runs of pixels on `pool`, reading
+    // only planes made before it; a run walks its pixels' (x, y) along.)
     const RUN: usize = 1 << 13;
+    let (mut amax, mut none) = (vec![0.0f32; n], vec![0.0f32; n]);
+    pool.planes(vec![&mut amax[..], &mut none[..]], RUN, |start, runs| {
+        let (am, no) = runs.split_at_mut(1);
+        for (i, (am, no)) in am[0].iter_mut().zip(no[0].iter_mut()).enumerate() {
+            let p = start + i;
+            let a = [albedo[p], albedo[n + p], albedo[2 * n + p]];
+            *am = a[0].max(a[1]).max(a[2]).clamp(0.0, 1.0);
+            *no = 1.0 - albedo_weight(a);
+        }
+    });
+    let (amax, none) = (&amax, &none);
     let mut covered = vec![0.0f32; n];
+    window_max(pool, amax, w, h, 1, &mut covered);
     pool.planes(vec![&mut covered[..]], RUN, |start, runs| {
         for (i, o) in runs[0].iter_mut().enumerate() {
-            let p = start + i;
-            let (x, y) = (p % w, p / w);
-            let mut m = 0.0f32;
-            for yy in y.saturating_sub(1)..(y + 2).min(h) {
-                for xx in x.saturating_sub(1)..(x + 2).min(w) {
-                    m = m.max(amax[yy * w + xx]);
-                }
-            }
+            let (p, m) = (start + i, *o);
+            *o = 0.0;
             if m > 0.0 {
                 *o = ((1.0 - amax[p] / m - PARTIAL_FROM) / (PARTIAL_FULL - PARTIAL_FROM)).clamp(0.0, 1.0);
             }
@@ -337,7 +341,17 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
     // 1 spp about half of a strip light's samples miss it, so the next hit
     // along the strip may be two pixels away.
     const SUPPORT: usize = 2;
-    let lum: Vec<f32> = (0..n).map(|p| luminance(c[p], c[n + p], c[2 * n + p]).max(0.0)).collect();
+    let mut lum = vec![0.0f32; n];
+    {
+        let c: &[f32] = c;
+        pool.planes(vec![&mut lum[..]], RUN, |start, runs| {
+            for (i, o) in runs[0].iter_mut().enumerate() {
+                let p = start + i;
+                *o = luminance(c[p], c[n + p], c[2 * n + p]).max(0.0);
+            }
+        });
+    }
+    let (lum, covered) = (&lum, &covered);
     let mut keep0 = none.clone();
     // How much a pixel is known to be a light (covered in part, or bright
     // and smooth): its level is the surroundings' own, not EXCESS_RATIO
@@ -346,9 +360,9 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
     let mut tight = vec![0.0f32; n];
     pool.planes(vec![&mut keep0[..], &mut tight[..]], RUN, |start, runs| {
         let (k0, ti) = runs.split_at_mut(1);
-        for (i, (k0, ti)) in k0[0].iter_mut().zip(ti[0].iter_mut()).enumerate() {
-            let p = start + i;
-            let (x, y) = (p % w, p / w);
+        let mut at = Walk::new(start, w);
+        for (k0, ti) in k0[0].iter_mut().zip(ti[0].iter_mut()) {
+            let (p, x, y) = at.next();
             if covered[p] <= *k0 {
                 continue;
             }
@@ -371,9 +385,9 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
     // accurate as it came.
     let mut core = none.clone();
     pool.planes(vec![&mut core[..], &mut keep0[..], &mut tight[..]], RUN, |start, runs| {
+        let mut at = Walk::new(start, w);
         for i in 0..runs[0].len() {
-            let p = start + i;
-            let (x, y) = (p % w, p / w);
+            let (p, x, y) = at.next();
             if lum[p] <= floor {
                 continue;
             }
@@ -397,34 +411,33 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
     }
     const OUTLINE: usize = 2;
     let mut keep = vec![0.0f32; n];
-    let (core, keep0) = (&core, &keep0);
+    // The outline of an emitter (two pixels: the smoothness test leaves out
+    // a light's last pixel row and the one inside it, whose 3x3 reaches the
+    // dark side); a covered pixel itself.
+    window_max(pool, &core, w, h, OUTLINE, &mut keep);
+    let keep0 = &keep0;
     pool.planes(vec![&mut keep[..]], RUN, |start, runs| {
         for (i, o) in runs[0].iter_mut().enumerate() {
-            let p = start + i;
-            let (x, y) = (p % w, p / w);
-            let mut m = 0.0f32;
-            for yy in y.saturating_sub(OUTLINE)..(y + OUTLINE + 1).min(h) {
-                for xx in x.saturating_sub(OUTLINE)..(x + OUTLINE + 1).min(w) {
-                    m = m.max(core[yy * w + xx]);
-                }
-            }
-            // The outline of an emitter (two pixels: the smoothness test
-            // leaves out a light's last pixel row and the one inside it,
-            // whose 3x3 reaches the dark side); a covered pixel itself.
-            *o = m.max(keep0[p]);
+            *o = o.max(keep0[start + i]);
         }
     });
     // Box sums over the reach of (1 - keep) lum(c) and (1 - keep).
     let r = EXCESS_RADIUS;
     let mut num = vec![0.0f32; n];
     let mut den = vec![0.0f32; n];
-    for p in 0..n {
-        let a = 1.0 - keep[p];
-        num[p] = a * luminance(c[p], c[n + p], c[2 * n + p]).max(0.0);
-        den[p] = a;
+    {
+        let (c, keep): (&[f32], &[f32]) = (c, &keep);
+        pool.planes(vec![&mut num[..], &mut den[..]], RUN, |start, runs| {
+            let (nu, de) = runs.split_at_mut(1);
+            for (i, (nu, de)) in nu[0].iter_mut().zip(de[0].iter_mut()).enumerate() {
+                let p = start + i;
+                let a = 1.0 - keep[p];
+                *nu = a * luminance(c[p], c[n + p], c[2 * n + p]).max(0.0);
+                *de = a;
+            }
+        });
     }
-    box_sum(&mut num, w, h, r);
-    box_sum(&mut den, w, h, r);
+    pool.install(|| rayon::join(|| box_sum(&mut num, w, h, r), || box_sum(&mut den, w, h, r)));
     let mut planes: Vec<&mut [f32]> = c[..3 * n].chunks_mut(n).collect();
     planes.extend(excess[..3 * n].chunks_mut(n));
     let (keep, num, den, tight) = (&keep, &num, &den, &tight);
@@ -470,21 +483,26 @@ pub fn clamp_fireflies(pool: &Pool, c: &mut [f32], radiance: &[f32], albedo: &[f
     if n == 0 || c.len() < 3 * n || radiance.len() < 3 * n || albedo.len() < 3 * n {
         return;
     }
-    let lum: Vec<f32> = (0..n).map(|i| (radiance[i] + radiance[n + i] + radiance[2 * n + i]) / 3.0).collect();
-    let mut s1: Vec<f32> = lum.iter().map(|&v| if v.is_finite() { v } else { 0.0 }).collect();
-    let mut s2: Vec<f32> = s1.iter().map(|&v| v * v).collect();
-    box_sum(&mut s1, w, h, 2);
-    box_sum(&mut s2, w, h, 2);
-    let (lum, s1, s2) = (&lum, &s1, &s2);
-    pool.planes(c[..3 * n].chunks_mut(n).collect(), 1 << 14, |start, runs| {
+    let (mut lum, mut s1, mut s2) = (vec![0.0f32; n], vec![0.0f32; n], vec![0.0f32; n]);
+    pool.planes(vec![&mut lum[..], &mut s1[..], &mut s2[..]], 1 << 14, |start, runs| {
         for j in 0..runs[0].len() {
             let i = start + j;
+            let l = (radiance[i] + radiance[n + i] + radiance[2 * n + i]) / 3.0;
+            let v = if l.is_finite() { l } else { 0.0 };
+            (runs[0][j], runs[1][j], runs[2][j]) = (l, v, v * v);
+        }
+    });
+    pool.install(|| rayon::join(|| box_sum(&mut s1, w, h, 2), || box_sum(&mut s2, w, h, 2)));
+    let (lum, s1, s2) = (&lum, &s1, &s2);
+    pool.planes(c[..3 * n].chunks_mut(n).collect(), 1 << 14, |start, runs| {
+        let mut at = Walk::new(start, w);
+        for j in 0..runs[0].len() {
+            let (i, x, y) = at.next();
             let li = lum[i];
             // (NaN fails the test too.)
             if li.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) || is_emitter(albedo, n, i) {
                 continue;
             }
-            let (y, x) = (i / w, i % w);
             let cnt = (((x + 3).min(w) - x.saturating_sub(2)) * ((y + 3).min(h) - y.saturating_sub(2))) as f64 - 1.0;
             if cnt < 1.0 {
                 continue;
@@ -501,6 +519,63 @@ pub fn clamp_fireflies(pool: &Pool, c: &mut [f32], radiance: &[f32], albedo: &[f
             }
         }
     });
+}
+
+/// `out` = the largest of 0 and the values of `src` (NaN ignored) over the
+/// `(2r+1)^2` window around each pixel, clipped at the border: the largest
+/// along rows, then along columns (the same maximum, 2(2r+1) comparisons a
+/// pixel instead of (2r+1)^2); rows on `pool`.
+fn window_max(pool: &Pool, src: &[f32], w: usize, h: usize, r: usize, out: &mut [f32]) {
+    use rayon::prelude::*;
+    let n = w * h;
+    if n == 0 {
+        return;
+    }
+    let mut rows = vec![0.0f32; n];
+    pool.install(|| {
+        rows.par_chunks_mut(w).zip(src[..n].par_chunks(w)).with_min_len(8).for_each(|(o, s)| {
+            for (x, o) in o.iter_mut().enumerate() {
+                *o = s[x.saturating_sub(r)..(x + r + 1).min(w)].iter().fold(0.0f32, |m, &v| m.max(v));
+            }
+        });
+        let rows = &rows;
+        out[..n].par_chunks_mut(w).enumerate().with_min_len(8).for_each(|(y, o)| {
+            o.fill(0.0);
+            for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                for (o, &v) in o.iter_mut().zip(&rows[yy * w..(yy + 1) * w]) {
+                    *o = o.max(v);
+                }
+            }
+        });
+    });
+}
+
+/// Pixel index and `(x, y)` of consecutive pixels of a row-major image
+/// `w` wide, from `start` on (one division per run, not per pixel).
+struct Walk {
+    p: usize,
+    x: usize,
+    y: usize,
+    w: usize,
+}
+
+impl Walk {
+    fn new(start: usize, w: usize) -> Self {
+        let w = w.max(1);
+        Walk { p: start, x: start % w, y: start / w, w }
+    }
+    /// This pixel's `(p, x, y)`; moves to the next.
+    #[inline(always)]
+    fn next(&mut self) -> (usize, usize, usize) {
+        let r = (self.p, self.x, self.y);
+        self.p += 1;
+        self.x += 1;
+        if self.x == self.w {
+            self.x = 0;
+            self.y += 1;
+        }
+        r
+    }
 }
 
 /// In place: each value becomes the sum over the `(2r+1)^2` window around
