@@ -94,10 +94,18 @@ pub const FIREFLY_K: f32 = 6.0;
 pub const PARTIAL_FROM: f32 = 0.15;
 /// See [`PARTIAL_FROM`].
 pub const PARTIAL_FULL: f32 = 0.3;
-/// A pixel above the floor whose 3x3 neighbourhood's luminance is at least
+/// A pixel above [`CORE_FLOOR`] whose 3x3 neighbourhood's luminance is at least
 /// this fraction of its largest counts as an emitter even with albedo
 /// (Mitsuba's Cornell box gives its light the walls' white BSDF).
 pub const SMOOTH: f32 = 0.5;
+/// The level, in exposure-normalised units (44 times the exposure key),
+/// above which a smooth pixel with albedo counts as an emitter ([`SMOOTH`]).
+/// A lit wall is smooth too once the input has a few samples (a 64-spp
+/// Cornell box's wall beside the light, 1.2-2 in these units; the walls
+/// a moving light sweeps, up to 7 in a converged image); its noise above
+/// the surroundings' level was kept out of the filters, a patch of bright
+/// speckles. The box's light is at 52.
+pub const CORE_FLOOR: f32 = 8.0;
 /// ... and the multiple of the surrounding surfaces' level above which.
 pub const EXCESS_RATIO: f32 = 4.0;
 /// The same multiple for a pixel known to be a light (covered in part by
@@ -307,7 +315,8 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
     if n == 0 || c.len() < 3 * n || excess.len() < 3 * n || albedo.len() < 3 * n {
         return;
     }
-    let floor = EXCESS_FLOOR / if exposure > 0.0 && exposure.is_finite() { exposure } else { 1.0 };
+    let unit = if exposure > 0.0 && exposure.is_finite() { exposure } else { 1.0 };
+    let (floor, core_floor) = (EXCESS_FLOOR / unit, CORE_FLOOR / unit);
     // keep0 = 1 - w, or the part of a pixel a thin emitter covers (its
     // albedo well under its neighbours'), then the 3x3 maximum.
     // (Each pass writes its planes in runs of pixels on `pool`, reading
@@ -388,7 +397,7 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
         let mut at = Walk::new(start, w);
         for i in 0..runs[0].len() {
             let (p, x, y) = at.next();
-            if lum[p] <= floor {
+            if lum[p] <= core_floor {
                 continue;
             }
             let (mut lo, mut hi) = (f32::INFINITY, 0.0f32);
@@ -760,6 +769,96 @@ mod tests {
 
     fn pool() -> Pool {
         Pool::new(2).unwrap()
+    }
+
+    /// The separable window maximum against the window's own maximum (of 0
+    /// and the values, NaN ignored), borders clipped.
+    #[test]
+    fn window_max_is_the_windows_largest() {
+        let mut seed = 0x9e37_79b9_u32;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed
+        };
+        for &(w, h, r) in &[(1usize, 1usize, 1usize), (7, 5, 1), (9, 13, 2), (4, 3, 6), (33, 17, 2)] {
+            let src: Vec<f32> = (0..w * h)
+                .map(|_| match next() % 10 {
+                    0 => f32::NAN,
+                    1 => -1.0,
+                    _ => (next() % 1000) as f32 / 100.0,
+                })
+                .collect();
+            let mut out = vec![7.0f32; w * h];
+            window_max(&pool(), &src, w, h, r, &mut out);
+            for y in 0..h {
+                for x in 0..w {
+                    let mut m = 0.0f32;
+                    for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                        for xx in x.saturating_sub(r)..(x + r + 1).min(w) {
+                            let v = src[yy * w + xx];
+                            if v > m {
+                                m = v;
+                            }
+                        }
+                    }
+                    assert_eq!(out[y * w + x], m, "{w}x{h} r {r} at ({x}, {y})");
+                }
+            }
+        }
+    }
+
+    /// The excess split on a lit wall (albedo 0.7, exposure 1) with a light
+    /// of the wall's own albedo in it: the light's irradiance (50, over
+    /// [`CORE_FLOOR`]) is kept out of the filters; the wall, smooth and
+    /// bright (3, over [`EXCESS_FLOOR`] but under [`CORE_FLOOR`]) as a
+    /// 64-spp input's is, with its noise, keeps none (its brighter pixels
+    /// are noise to filter, not a light). `c + excess` is the input.
+    #[test]
+    fn excess_keeps_a_light_out_and_a_bright_wall_in() {
+        let (w, h) = (40, 30);
+        let n = w * h;
+        let light = |x: usize, y: usize| (14..26).contains(&x) && (10..20).contains(&y);
+        let mut seed = 0x1234_5678_u32;
+        let mut c = vec![0.0f32; 3 * n];
+        for y in 0..h {
+            for x in 0..w {
+                seed ^= seed << 13;
+                seed ^= seed >> 17;
+                seed ^= seed << 5;
+                // +-15 % noise on the wall; the light is constant.
+                let v = if light(x, y) { 50.0 } else { 3.0 * (0.85 + 0.3 * (seed % 1000) as f32 / 1000.0) };
+                for ch in 0..3 {
+                    c[ch * n + y * w + x] = v;
+                }
+            }
+        }
+        let albedo = vec![0.7f32; 3 * n];
+        let orig = c.clone();
+        let mut excess = vec![0.0f32; 3 * n];
+        split_excess(&pool(), &mut c, &albedo, w, h, 1.0, &mut excess);
+        for i in 0..3 * n {
+            assert!((c[i] + excess[i] - orig[i]).abs() <= 1e-5 * orig[i], "conserved at {i}");
+            assert!(excess[i] >= 0.0 && c[i] >= 0.0, "non-negative at {i}");
+        }
+        for y in 0..h {
+            for x in 0..w {
+                let p = y * w + x;
+                let inner = (16..24).contains(&x) && (12..18).contains(&y);
+                let far = !(10..30).contains(&x) || !(6..24).contains(&y);
+                if inner {
+                    assert!(excess[p] > 0.9 * orig[p], "the light's interior kept out at ({x}, {y}): {}", excess[p]);
+                }
+                if far {
+                    assert_eq!(excess[p], 0.0, "the wall is filtered whole at ({x}, {y})");
+                }
+            }
+        }
+        // The same wall without the light: no excess anywhere.
+        let mut c: Vec<f32> = orig.iter().map(|&v| if v == 50.0 { 3.0 } else { v }).collect();
+        split_excess(&pool(), &mut c, &albedo, w, h, 1.0, &mut excess);
+        assert!(excess.iter().all(|&e| e == 0.0), "a bright smooth wall is no light");
     }
 
     /// The envelope against its definition, `max_q b(q) DECAY^(|dx|+|dy|)`.
