@@ -334,6 +334,11 @@ struct SettingsCli {
     /// [default: 1; for WSKP and AFN the value their weights were trained with, if they say]
     #[arg(long, value_name = "K", value_parser = firefly)]
     ta_clamp: Option<f32>,
+    /// Temporal accumulation (ta, WSKP, AFN): let the history go where the frame's 9x9 mean
+    /// luminance differs from the accumulated one by more than Z standard errors of the frame's
+    /// mean (all of it by 2Z), so that a moving light does not lag (0: off) [default: 3]
+    #[arg(long, value_name = "Z", value_parser = firefly)]
+    ta_reject: Option<f32>,
     /// WSKP: ImportanceNet layers (3 or 6) [default: the --weights file's, else 6]
     #[arg(long, value_name = "N", value_parser = layers, help_heading = "Learned methods")]
     layers: Option<usize>,
@@ -391,6 +396,7 @@ impl SettingsCli {
         s.phi_color = self.phi_color;
         s.firefly_clamp = self.firefly_clamp;
         s.ta_clamp = self.ta_clamp;
+        s.ta_reject = self.ta_reject;
         s.layers = self.layers.unwrap_or_else(|| layers_of(self.weights.as_deref()));
         s.weights = self.weights;
         s.seed = self.seed;

@@ -101,6 +101,146 @@ pub const TA_CLAMP_RADIUS: usize = 2;
 /// The clamp's name in plans.
 pub const CLAMP_STAGE: &str = "history clamp (5x5 mean -+ k sd of the frame)";
 
+/// The history rejection's threshold ([`reject_stale`]): where the 9x9
+/// mean luminance of the accumulated colour and of the frame differ by
+/// more than `TA_REJECT` standard errors of the frame's mean, the history
+/// starts to give way, and by `2 TA_REJECT` it is gone.
+pub const TA_REJECT: f32 = 3.0;
+/// The rejection's window radius (9x9 means).
+pub const TA_REJECT_RADIUS: usize = 4;
+/// The rejection's name in plans.
+pub const REJECT_STAGE: &str = "history rejection (9x9 means against the frame's noise)";
+/// Bytes per pixel the rejection holds for a moment: the accumulated
+/// colour and counts in f32, three statistics planes.
+pub const REJECT_TEMP_BYTES: u64 = 7 * 4;
+
+/// Checks the history rejection's threshold given by the user.
+pub fn check_reject(z: f32) -> Result<f32> {
+    if z.is_finite() && (0.0..=1e6).contains(&z) {
+        Ok(z)
+    } else {
+        Err(HostError::Usage(format!("--ta-reject: expected a threshold from 0 (off) to 1e6 standard errors; got {z}")))
+    }
+}
+
+/// The history rejection (after A-SVGF's idea, Schied et al. 2018: let the
+/// history go where the frame says the signal changed). The clamp
+/// ([`TemporalParams::clamp_sigma`]) compares a pixel's history with the
+/// spread of its 5x5 neighbours, which at 1 spp is as wide as the signal:
+/// a light that moved, dimming or brightening a wall by half, passes it,
+/// and the accumulation lags for `1 / alpha_min` frames. A mean over a
+/// window is far less noisy than its pixels: with `m_f` and `m_t` the 9x9
+/// mean luminance of the frame `a` (of `(a + b) / 2` with the second
+/// estimate `b`) and of the accumulated colour, and `se` the standard
+/// error of `m_f` (from the pair's squared difference with `b`, else from
+/// the window's own variance, which counts the signal's variation as noise
+/// and so rejects less), `z = |m_f - m_t| / se`; the accumulated colour
+/// moves towards the frame by `beta = clamp(z / z0 - 1, 0, 1)` and the
+/// history counts shrink by `1 - beta`. A static scene's windows stay
+/// under `z0` (about 2 % of the pixels of a lounge pan at `z0 = 3`);
+/// a moving light's over it.
+#[allow(clippy::too_many_arguments)]
+pub fn reject_stale<P: HostPrecision>(
+    pool: &crate::runtime::par::Pool,
+    a: &[f32],
+    b: Option<&[f32]>,
+    w: usize,
+    h: usize,
+    z0: f32,
+    out: &mut Planes<P::Store>,
+    hist: &mut Planes<P::Store>,
+) {
+    let n = w * h;
+    if n == 0 || z0 <= 0.0 || a.len() < 3 * n || out.data.len() != 3 * n || hist.data.len() != n {
+        return;
+    }
+    let b = b.filter(|b| b.len() >= 3 * n);
+    const RUN: usize = 1 << 14;
+    let lum = |v: &[f32], p: usize| {
+        let l = crate::methods::features::luminance(v[p], v[n + p], v[2 * n + p]);
+        if l.is_finite() {
+            l
+        } else {
+            0.0
+        }
+    };
+    let mut oc = vec![0.0f32; 3 * n];
+    crate::runtime::precision::decode_par::<P>(pool, &out.data, &mut oc, out.frac);
+    // The frame's luminance, its squared noise term, the accumulated one.
+    let (mut mf, mut v, mut mt) = (vec![0.0f32; n], vec![0.0f32; n], vec![0.0f32; n]);
+    {
+        let oc = &oc;
+        pool.planes(vec![&mut mf[..], &mut v[..], &mut mt[..]], RUN, |start, runs| {
+            for j in 0..runs[0].len() {
+                let p = start + j;
+                let la = lum(a, p);
+                let (f, d) = match b {
+                    // The mean of the pair; its variance is half of one
+                    // estimate's, which (a - b)^2 / 2 estimates.
+                    Some(b) => {
+                        let lb = lum(b, p);
+                        (0.5 * (la + lb), 0.25 * (la - lb) * (la - lb))
+                    }
+                    None => (la, la * la),
+                };
+                runs[0][j] = f;
+                runs[1][j] = d;
+                runs[2][j] = lum(oc, p);
+            }
+        });
+    }
+    let r = TA_REJECT_RADIUS;
+    let sums = |x: &mut Vec<f32>| crate::methods::features::box_sum(x, w, h, r);
+    pool.install(|| {
+        rayon::join(|| sums(&mut mf), || rayon::join(|| sums(&mut v), || sums(&mut mt)));
+    });
+    let span = |p: usize, len: usize| ((p + r).min(len - 1) - p.saturating_sub(r) + 1) as f32;
+    let mut hv = vec![0.0f32; n];
+    P::decode(&hist.data, &mut hv, hist.frac);
+    let (mf, v, mt) = (&mf, &v, &mt);
+    let mut planes: Vec<&mut [f32]> = oc.chunks_mut(n).collect();
+    planes.push(&mut hv[..]);
+    pool.planes(planes, RUN, |start, runs| {
+        for j in 0..runs[0].len() {
+            let p = start + j;
+            let cnt = span(p % w, w) * span(p / w, h);
+            let (f, t) = (mf[p] / cnt, mt[p] / cnt);
+            // The frame mean's variance: with the pair, the window's mean of
+            // the per-pixel variance over the count; else the window's own
+            // variance over the count.
+            let var = match b {
+                Some(_) => v[p] / cnt / cnt,
+                None => (v[p] / cnt - f * f).max(0.0) / cnt,
+            };
+            let z = (f - t).abs() / var.max(1e-20).sqrt();
+            let beta = if z.is_finite() { (z / z0 - 1.0).clamp(0.0, 1.0) } else { 0.0 };
+            if beta > 0.0 {
+                for (ch, run) in runs[..3].iter_mut().enumerate() {
+                    let cur = a[ch * n + p];
+                    if cur.is_finite() {
+                        run[j] += beta * (cur - run[j]);
+                    }
+                }
+                runs[3][j] *= 1.0 - beta;
+            }
+        }
+    });
+    crate::runtime::precision::encode_par::<P>(pool, &oc, &mut out.data, out.frac);
+    P::encode(&hv, &mut hist.data, hist.frac);
+}
+
+/// Records the history rejection at `z` in `plan`: built when `z > 0`, else
+/// skipped (replacing an earlier entry).
+pub fn reject_plan(plan: &mut Plan, z: f32) {
+    plan.built.retain(|s| *s != REJECT_STAGE);
+    plan.skipped.retain(|(s, _)| *s != REJECT_STAGE);
+    if z > 0.0 {
+        plan.built.push(REJECT_STAGE);
+    } else {
+        plan.skipped.push((REJECT_STAGE, "--ta-reject 0".into()));
+    }
+}
+
 /// Records the history clamp of width `k` in `plan`: built when `k > 0`,
 /// else skipped for `why` (replacing an earlier entry).
 pub fn clamp_plan(plan: &mut Plan, k: f32, why: &str) {
@@ -158,6 +298,8 @@ pub struct TemporalAccumulation<P: HostPrecision> {
     use_motion: bool,
     use_albedo: bool,
     prev: Option<History<P>>,
+    /// The history rejection's threshold ([`reject_stale`]; 0: off).
+    reject: f32,
 }
 
 struct History<P: HostPrecision> {
@@ -199,7 +341,33 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
             plan.skipped.push(("albedo test", "no albedo".into()));
         }
         let params = TemporalParams { pos_limit: POSITION_TOLERANCE * scene_scale(first), ..TemporalParams::default() };
-        Ok(TemporalAccumulation { plan, params, use_normal, use_position, use_motion, use_albedo, prev: None })
+        plan.built.push(REJECT_STAGE);
+        Ok(TemporalAccumulation {
+            plan,
+            params,
+            use_normal,
+            use_position,
+            use_motion,
+            use_albedo,
+            prev: None,
+            reject: TA_REJECT,
+        })
+    }
+
+    /// With the history rejection at `z` standard errors ([`reject_stale`];
+    /// 0: off).
+    ///
+    /// # Errors
+    /// A threshold outside `[0, 1e6]`.
+    pub fn with_reject(mut self, z: f32) -> Result<Self> {
+        self.reject = check_reject(z)?;
+        reject_plan(&mut self.plan, self.reject);
+        Ok(self)
+    }
+
+    /// The history rejection's threshold (0: off).
+    pub fn reject(&self) -> f32 {
+        self.reject
     }
 
     /// With the history clamp of width `k` standard deviations (0: off).
@@ -242,6 +410,7 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
         l.alloc(3 * s); // colour
         l.alloc(3 * s * (normal + position + albedo) + 2 * s * motion);
         l.alloc(4 * s); // accumulated colour, history counts
+        l.temp(REJECT_TEMP_BYTES);
         l.free(history).free(3 * s + 2 * s * motion);
         history
     }
@@ -290,6 +459,14 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
                         temporal::accumulate::<P>(isa, &inp, &params, band, hb, y0)
                     })
                 })?;
+                if self.reject > 0.0 {
+                    if let Some(a) = f.get(Buffer::Color) {
+                        let z0 = self.reject;
+                        t.time("history rejection", || {
+                            reject_stale::<P>(&ctx.pool, a, f.get(Buffer::ColorB), w, h, z0, &mut out, &mut hist)
+                        });
+                    }
+                }
                 History { color: out, hist, normal, position, albedo }
             }
         };
@@ -317,6 +494,86 @@ impl<P: HostPrecision> Denoiser for TemporalAccumulation<P> {
 mod tests {
     use super::*;
     use mcdenoise_core::F32;
+
+    /// 1-spp-like noise: `level` times an exponential-ish factor of mean 1
+    /// (a deterministic hash), per pixel and channel.
+    fn noisy(level: &[f32], seed: u32) -> Vec<f32> {
+        let mut s = seed;
+        level
+            .iter()
+            .map(|&l| {
+                s ^= s << 13;
+                s ^= s >> 17;
+                s ^= s << 5;
+                let u = ((s >> 8) as f32 + 0.5) / (1u32 << 24) as f32;
+                l * -u.ln()
+            })
+            .collect()
+    }
+
+    /// The history rejection, in f32 and fixed point: an accumulated colour
+    /// that agrees with the frame (a static scene, its history 0.2 of the
+    /// 1-spp noise) keeps nearly every pixel; one from before a light
+    /// moved (three times or a third of the frame's level over the right half) gives
+    /// way to the frame there and keeps the left half; with the pair or
+    /// without it.
+    #[test]
+    fn rejection_lets_a_moved_light_go_and_keeps_a_static_history() {
+        fn run<P: HostPrecision>(pair: bool) {
+            let (w, h) = (64, 48);
+            let n = w * h;
+            let pool = crate::runtime::par::Pool::new(2).unwrap();
+            let level: Vec<f32> = (0..3 * n).map(|i| 0.3 + 0.2 * ((i % n) % w) as f32 / w as f32).collect();
+            let a = noisy(&level, 7);
+            let b = noisy(&level, 8);
+            let b = pair.then_some(&b[..]);
+            // A history close to the truth: its noise a fifth of the frame's.
+            let calm: Vec<f32> = level.iter().zip(noisy(&level, 9)).map(|(&l, v)| l + 0.2 * (v - l)).collect();
+            for (name, factor) in [("static", 1.0f32), ("brighter before", 3.0), ("dimmer before", 1.0 / 3.0)] {
+                let hist_c: Vec<f32> =
+                    calm.iter().enumerate().map(|(i, &v)| if (i % n) % w >= w / 2 { v * factor } else { v }).collect();
+                let frac = P::frac_or_zero(P::choose_frac(&hist_c, Kind::Image));
+                let mut out = Planes::<P::Store>::new(3, w, h).with_frac(frac);
+                P::encode(&hist_c, &mut out.data, frac);
+                let mut hist = Planes::<P::Store>::new(1, w, h).with_frac(P::frac_or_zero(HISTORY_FRAC));
+                P::encode(&vec![8.0f32; n], &mut hist.data, hist.frac);
+                reject_stale::<P>(&pool, &a, b, w, h, TA_REJECT, &mut out, &mut hist);
+                let (oc, hv) = (out.decode::<P>(), hist.decode::<P>());
+                let (mut kept, mut gone, mut half, mut left, mut right) = (0usize, 0usize, 0usize, 0usize, 0usize);
+                for y in 0..h {
+                    // Away from the halves' border (the 9x9 windows).
+                    for x in (0..w).filter(|&x| x.abs_diff(w / 2) > TA_REJECT_RADIUS + 1) {
+                        let p = y * w + x;
+                        let same = (0..3)
+                            .all(|c| (oc[c * n + p] - hist_c[c * n + p]).abs() <= 2e-3 * hist_c[c * n + p] + 1e-3);
+                        let frame = (0..3).all(|c| (oc[c * n + p] - a[c * n + p]).abs() <= 2e-3 * a[c * n + p] + 1e-3);
+                        // At least halfway from the history to the frame.
+                        let halfway = (0..3).all(|c| {
+                            let (o, hc, f) = (oc[c * n + p], hist_c[c * n + p], a[c * n + p]);
+                            (o - f).abs() <= 0.5 * (hc - f).abs() + 1e-3
+                        });
+                        if x < w / 2 || factor == 1.0 {
+                            left += 1;
+                            kept += usize::from(same && hv[p] == 8.0);
+                        } else {
+                            right += 1;
+                            gone += usize::from(frame && hv[p] == 0.0);
+                            half += usize::from(halfway && hv[p] <= 4.0);
+                        }
+                    }
+                }
+                assert!(kept as f64 >= 0.97 * left as f64, "{name}, pair {pair}: {kept} of {left} kept");
+                if factor != 1.0 {
+                    assert!(gone as f64 >= 0.9 * right as f64, "{name}, pair {pair}: {gone} of {right} let go");
+                    assert!(half as f64 >= 0.99 * right as f64, "{name}, pair {pair}: {half} of {right} halfway");
+                }
+            }
+        }
+        for pair in [true, false] {
+            run::<F32>(pair);
+            run::<mcdenoise_core::Fixed>(pair);
+        }
+    }
 
     /// A static 12x10 sequence: `frames` of flat `level` with uniform noise
     /// of half-width `amp` (a deterministic hash), zero motion.

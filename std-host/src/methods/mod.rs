@@ -28,8 +28,9 @@ pub mod wskp;
 pub use atrous::Atrous;
 
 pub use basic::{
-    check_clamp, clamp_plan, scene_scale, ta_clamp_for, ta_clamp_of, Passthrough, TemporalAccumulation, CLAMP_STAGE,
-    POSITION_TOLERANCE, TA_CLAMP, TA_CLAMP_RADIUS,
+    check_clamp, check_reject, clamp_plan, reject_plan, reject_stale, scene_scale, ta_clamp_for, ta_clamp_of,
+    Passthrough, TemporalAccumulation, CLAMP_STAGE, POSITION_TOLERANCE, REJECT_STAGE, TA_CLAMP, TA_CLAMP_RADIUS,
+    TA_REJECT,
 };
 
 /// The methods, by command-line name.
@@ -201,6 +202,9 @@ pub struct Settings {
     /// the frame's 5x5 neighbourhood (0: off; `None`: `ta`'s default
     /// [`TA_CLAMP`], the learned methods' [`ta_clamp_for`] their weights).
     pub ta_clamp: Option<f32>,
+    /// Temporal accumulation's history rejection, in standard errors of the
+    /// frame's 9x9 mean ([`reject_stale`]; 0: off; `None`: [`TA_REJECT`]).
+    pub ta_reject: Option<f32>,
     /// Online methods: the seed of the initial weights.
     pub seed: u64,
     /// Online methods: write the network's state here after every frame.
@@ -233,6 +237,7 @@ impl Default for Settings {
             refine: true,
             fallback: true,
             ta_clamp: None,
+            ta_reject: None,
             seed: crate::methods::cross::SEED,
             save_state: None,
             load_state: None,
@@ -338,7 +343,9 @@ fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Fr
     Ok(match kind {
         MethodKind::None => Box::new(Passthrough::<P>::new(first)),
         MethodKind::Ta => Box::new(
-            TemporalAccumulation::<P>::new(first, true)?.with_clamp(settings.ta_clamp.unwrap_or(basic::TA_CLAMP))?,
+            TemporalAccumulation::<P>::new(first, true)?
+                .with_clamp(settings.ta_clamp.unwrap_or(basic::TA_CLAMP))?
+                .with_reject(settings.ta_reject.unwrap_or(basic::TA_REJECT))?,
         ),
         MethodKind::Atrous => Box::new(Atrous::<P>::new(first, false, settings)?),
         MethodKind::SureAtrous => Box::new(Atrous::<P>::new(first, true, settings)?),
@@ -350,6 +357,9 @@ fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Fr
             if let Some(k) = settings.ta_clamp {
                 m = m.with_ta_clamp(k)?;
             }
+            if let Some(z) = settings.ta_reject {
+                m = m.with_ta_reject(z)?;
+            }
             Box::new(m)
         }
         MethodKind::Afn => {
@@ -360,6 +370,9 @@ fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Fr
                 .with_int8(settings.emulate_int8)?;
             if let Some(k) = settings.ta_clamp {
                 m = m.with_ta_clamp(k)?;
+            }
+            if let Some(z) = settings.ta_reject {
+                m = m.with_ta_reject(z)?;
             }
             Box::new(m)
         }

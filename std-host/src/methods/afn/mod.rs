@@ -529,6 +529,14 @@ impl<P: HostPrecision> Afn<P> {
         Ok(self)
     }
 
+    /// With the accumulation's history rejection at `z` standard errors
+    /// ([`crate::methods::basic::reject_stale`]; 0: off).
+    pub fn with_ta_reject(mut self, z: f32) -> Result<Self> {
+        self.ta = self.ta.with_reject(z)?;
+        crate::methods::basic::reject_plan(&mut self.plan, z);
+        Ok(self)
+    }
+
     /// Memory per frame (see [`crate::runtime::memory`]): the accumulation, the f32
     /// buffers kept, the kernel predictor's tensors (kept for the next frame:
     /// full scale 12 + 44 + 16 planes, half 24 + 56 + 32 + 49, quarter 32 +

@@ -410,6 +410,14 @@ impl<P: HostPrecision> Wskp<P> {
         Ok(self)
     }
 
+    /// With the accumulation's history rejection at `z` standard errors
+    /// ([`crate::methods::basic::reject_stale`]; 0: off).
+    pub fn with_ta_reject(mut self, z: f32) -> Result<Self> {
+        self.ta = self.ta.with_reject(z)?;
+        crate::methods::basic::reject_plan(&mut self.plan, z);
+        Ok(self)
+    }
+
     /// Memory per frame (see [`crate::runtime::memory`]): the accumulation, the f32
     /// buffers kept (and their copies in another storage), the network's
     /// tensors (kept for the next frame), the output. The first frame in
