@@ -111,8 +111,9 @@ pub const TA_REJECT_RADIUS: usize = 4;
 /// The rejection's name in plans.
 pub const REJECT_STAGE: &str = "history rejection (9x9 means against the frame's noise)";
 /// Bytes per pixel the rejection holds for a moment: the accumulated
-/// colour and counts in f32, three statistics planes.
-pub const REJECT_TEMP_BYTES: u64 = 7 * 4;
+/// colour and counts in f32, three statistics planes and the box sums'
+/// copies of them (the three run at once).
+pub const REJECT_TEMP_BYTES: u64 = 10 * 4;
 
 /// Checks the history rejection's threshold given by the user.
 pub fn check_reject(z: f32) -> Result<f32> {
