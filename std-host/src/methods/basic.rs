@@ -597,11 +597,16 @@ mod tests {
             .collect()
     }
 
-    /// The mean of the last frame `ta` returns for `seq`, and its mean
-    /// squared deviation from `truth`.
-    fn run(seq: &[Frame], clamp: f32, truth: f32) -> (f32, f32) {
+    /// The mean of the last frame `ta` returns for `seq` (with the clamp
+    /// and the rejection given), and its mean squared deviation from `truth`.
+    fn run_with(seq: &[Frame], clamp: f32, reject: f32, truth: f32) -> (f32, f32) {
         let mut ctx = crate::methods::context(&crate::methods::Settings::default()).unwrap();
-        let mut ta = TemporalAccumulation::<F32>::new(&seq[0], true).unwrap().with_clamp(clamp).unwrap();
+        let mut ta = TemporalAccumulation::<F32>::new(&seq[0], true)
+            .unwrap()
+            .with_clamp(clamp)
+            .unwrap()
+            .with_reject(reject)
+            .unwrap();
         let mut t = Timings::default();
         let mut last = Vec::new();
         for f in seq {
@@ -609,6 +614,28 @@ mod tests {
         }
         let n = last.len() as f32;
         (last.iter().sum::<f32>() / n, last.iter().map(|v| (v - truth).powi(2)).sum::<f32>() / n)
+    }
+
+    /// [`run_with`] with the clamp alone.
+    fn run(seq: &[Frame], clamp: f32, truth: f32) -> (f32, f32) {
+        run_with(seq, clamp, 0.0, truth)
+    }
+
+    /// The rejection alone (no clamp) in the accumulation: a light switched
+    /// down to a third is followed at once; a static noisy sequence is
+    /// still averaged (the 9x9 means agree within the frame's noise).
+    #[test]
+    fn the_rejection_follows_a_changed_light_and_keeps_averaging() {
+        let seq = frames(&[1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.33, 0.33, 0.33], 0.3);
+        let (off, _) = run_with(&seq, 0.0, 0.0, 0.33);
+        let (on, _) = run_with(&seq, 0.0, TA_REJECT, 0.33);
+        assert!(off > 0.6, "without it the old light lingers: {off}");
+        assert!((on - 0.33).abs() < 0.03, "with it the frame's level: {on}");
+        let noisy = frames(&[1.0; 10], 0.5);
+        let one = run_with(&noisy[..1], 0.0, TA_REJECT, 1.0).1;
+        let (mean, ten) = run_with(&noisy, 0.0, TA_REJECT, 1.0);
+        assert!((mean - 1.0).abs() < 0.05, "no bias on a static frame: {mean}");
+        assert!(ten < 0.3 * one, "ten frames average the noise down: {ten} against one frame's {one}");
     }
 
     /// A light switched down to a tenth: without the clamp the history
