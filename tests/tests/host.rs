@@ -109,6 +109,10 @@ fn temporal_accumulation_follows_the_blend_recurrence() {
             precision: PrecisionKind::F32,
             phi_color: None,
             ta_clamp: (clamp == 0.0).then_some(0.0),
+            // The rejection off: these noiseless frames' every change is
+            // beyond their noise (the rejection's own tests are in
+            // std-host's `basic.rs`).
+            ta_reject: Some(0.0),
             ..Settings::default()
         };
         let first = static_frame(w, h, colours[0], 0.0);

@@ -623,6 +623,9 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         eprintln!("resumed from {} at step {step}", r.display());
     }
     let ta_meta = ("ta_clamp", a.ta_clamp.to_string());
+    // The accumulation's history rejection the inputs were made with (the
+    // default; a record, not read back).
+    let reject_meta = ("ta_reject", crate::methods::TA_REJECT.to_string());
     let mut at = 0;
     let spec: Vec<(Net, Vec<f32>, (usize, usize))> = nets
         .iter()
@@ -751,7 +754,12 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             None => {}
         }
         if last_ckpt.elapsed().as_secs_f64() >= a.checkpoint_minutes * 60.0 {
-            model.save(&ckpt, &tr, &[("seconds", format!("{secs:.1}")), ta_meta.clone()], Some((step, &rng)))?;
+            model.save(
+                &ckpt,
+                &tr,
+                &[("seconds", format!("{secs:.1}")), ta_meta.clone(), reject_meta.clone()],
+                Some((step, &rng)),
+            )?;
             flush_log(&mut log)?;
             last_ckpt = Instant::now();
         }
@@ -760,8 +768,13 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         b.finish_and_clear();
     }
     let secs = seconds_before + start.elapsed().as_secs_f64();
-    model.save(&ckpt, &tr, &[("seconds", format!("{secs:.1}")), ta_meta.clone()], Some((step, &rng)))?;
-    model.save(&a.out, &tr, &[("steps", step.to_string()), ta_meta], None)?;
+    model.save(
+        &ckpt,
+        &tr,
+        &[("seconds", format!("{secs:.1}")), ta_meta.clone(), reject_meta.clone()],
+        Some((step, &rng)),
+    )?;
+    model.save(&a.out, &tr, &[("steps", step.to_string()), ta_meta, reject_meta], None)?;
     let vp = if val.is_empty() { None } else { Some(validate_now(&tr)?) };
     eprintln!(
         "trained {step} steps in {secs:.1} s ({:.2} steps/s this run, {} threads, {}){}; final loss {:.4}{}; weights: {}",
