@@ -120,11 +120,14 @@ struct Job {
     size: (usize, usize),
 }
 
-/// The buffers `method` reads under `settings`: WSKP and AFN read the
-/// second estimate only for their fallback's noise.
+/// The buffers `method` reads under `settings`: `ta`, WSKP and AFN read
+/// the second estimate only for the history rejection's noise and (WSKP,
+/// AFN) their fallback's.
 fn reads(method: MethodKind, settings: &Settings) -> [bool; 7] {
     let mut r = method.reads();
-    if matches!(method, MethodKind::Wskp | MethodKind::Afn) && !settings.fallback {
+    let reject = settings.ta_reject != Some(0.0);
+    let fallback = settings.fallback && matches!(method, MethodKind::Wskp | MethodKind::Afn);
+    if matches!(method, MethodKind::Ta | MethodKind::Wskp | MethodKind::Afn) && !reject && !fallback {
         r[crate::io::frame::Buffer::ColorB.index()] = false;
     }
     r

@@ -90,11 +90,13 @@ impl MethodKind {
         };
         match self {
             MethodKind::None => set(&[B::Color]),
-            MethodKind::Ta => set(&[B::Color, B::Albedo, B::Normal, B::Depth, B::Position, B::Motion]),
+            // (B for the history rejection's noise, where the frame has it.)
+            MethodKind::Ta => set(&[B::Color, B::ColorB, B::Albedo, B::Normal, B::Depth, B::Position, B::Motion]),
             MethodKind::Atrous | MethodKind::SureAtrous => {
                 set(&[B::Color, B::ColorB, B::Albedo, B::Normal, B::Depth, B::Position])
             }
-            // (B only for the fallback's noise, where the frame has it.)
+            // (B for the fallback's and the history rejection's noise, where
+            // the frame has it.)
             MethodKind::Wskp | MethodKind::Afn => {
                 set(&[B::Color, B::ColorB, B::Albedo, B::Normal, B::Depth, B::Position, B::Motion])
             }
