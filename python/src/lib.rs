@@ -166,6 +166,7 @@ fn settings_of(
                 "phi_color" => s.phi_color = Some(real(0.0, 1e6, "a positive number up to 1e6")?),
                 "firefly_clamp" => s.firefly_clamp = Some(real(0.0, 1e6, "a number from 0 (off) up to 1e6")?),
                 "ta_clamp" => s.ta_clamp = Some(real(0.0, 1e6, "a number from 0 (off) up to 1e6")?),
+                "ta_reject" => s.ta_reject = Some(real(0.0, 1e6, "a number from 0 (off) up to 1e6")?),
                 "seed" => s.seed = v.extract()?,
                 "cross_lr" => s.cross_lr = real(0.0, 1.0, "a positive number up to 1")?,
                 "cross_spatial_only" => s.cross_spatial_only = v.extract()?,
@@ -180,7 +181,7 @@ fn settings_of(
                 other => {
                     return Err(PyTypeError::new_err(format!(
                         "unexpected keyword argument '{other}' (options: layers, weights, refine, fallback, \
-                         phi_color, firefly_clamp, ta_clamp, seed, cross_lr, cross_spatial_only, load_state, save_state, \
+                         phi_color, firefly_clamp, ta_clamp, ta_reject, seed, cross_lr, cross_spatial_only, load_state, save_state, \
                          isa)"
                     )))
                 }
@@ -230,7 +231,8 @@ fn to_array<'py>(py: Python<'py>, planes: Vec<f32>, w: usize, h: usize) -> Bound
 /// options: layers (WSKP: 3 or 6), weights (a file made by `mcdenoise
 /// train`), refine (AFN, default True), fallback (WSKP and AFN, default
 /// True), phi_color, firefly_clamp (à-trous), ta_clamp (ta, WSKP, AFN:
-/// the accumulation's history clamp), seed, cross_lr, cross_spatial_only, load_state, save_state (cross), isa.
+/// the accumulation's history clamp), ta_reject (ta, WSKP, AFN: the history
+/// rejection's threshold, 0 off), seed, cross_lr, cross_spatial_only, load_state, save_state (cross), isa.
 #[pyclass(name = "Denoiser", module = "mcdenoise")]
 struct PyDenoiser {
     state: std::sync::Mutex<State>,
@@ -399,7 +401,8 @@ impl PyDenoiser {
 /// options:   layers (WSKP: 3 or 6, default 6), weights (a file made by
 ///            `mcdenoise train`; default: the bundled weights), refine (AFN,
 ///            default True), fallback (WSKP and AFN, default True), phi_color and firefly_clamp (à-trous),
-///            ta_clamp (ta, WSKP, AFN: the history clamp), seed,
+///            ta_clamp (ta, WSKP, AFN: the history clamp), ta_reject (ta,
+///            WSKP, AFN: the history rejection, 0 off), seed,
 ///            cross_lr and cross_spatial_only (cross), isa (scalar, avx2,
 ///            avx512)
 /// Returns the denoised colour, H x W x 3 float32. Errors: ValueError

@@ -206,3 +206,19 @@ def test_help_and_version():
                          capture_output=True, text=True, check=True).stdout
     assert out.strip() == "mcdenoise %s" % mcdenoise.__version__
     assert set(mcdenoise.METHODS) == {"none", "ta", "atrous", "sure-atrous", "wskp", "afn", "cross"}
+
+
+def test_ta_reject_matches_the_command_line():
+    # Off and on: the keyword reaches the accumulation as --ta-reject does.
+    with tempfile.TemporaryDirectory() as out:
+        subprocess.run([str(BIN), "denoise", "--quiet", "--float", "--threads", "2", "--method", "ta",
+                        "--ta-reject", "0", str(SAMPLE), "-o", out], check=True)
+        d = mcdenoise.Denoiser("ta", threads=2, ta_reject=0.0)
+        on = mcdenoise.Denoiser("ta", threads=2)
+        differs = False
+        for i, f in enumerate(frames()):
+            got = d.denoise(f["color"], **buffers(f))
+            want = read_rgb(pathlib.Path(out) / ("frame_%04d.exr" % i))
+            assert np.array_equal(got, want), "ta_reject=0 frame %d differs from the CLI" % i
+            differs |= not np.array_equal(on.denoise(f["color"], **buffers(f)), got)
+        assert differs, "the rejection changes some frame of the sample"
