@@ -117,10 +117,15 @@ pub const REJECT_TEMP_BYTES: u64 = 10 * 4;
 
 /// Checks the history rejection's threshold given by the user.
 pub fn check_reject(z: f32) -> Result<f32> {
-    if z.is_finite() && (0.0..=1e6).contains(&z) {
-        Ok(z)
+    check_off_to_1e6(z, "--ta-reject", "a threshold", "standard errors")
+}
+
+/// `v` if it is in `[0, 1e6]`, else a usage error naming `option`.
+fn check_off_to_1e6(v: f32, option: &str, what: &str, unit: &str) -> Result<f32> {
+    if v.is_finite() && (0.0..=1e6).contains(&v) {
+        Ok(v)
     } else {
-        Err(HostError::Usage(format!("--ta-reject: expected a threshold from 0 (off) to 1e6 standard errors; got {z}")))
+        Err(HostError::Usage(format!("{option}: expected {what} from 0 (off) to 1e6 {unit}; got {v}")))
     }
 }
 
@@ -195,16 +200,17 @@ pub fn reject_stale<P: HostPrecision>(
     pool.install(|| {
         rayon::join(|| sums(&mut mf), || rayon::join(|| sums(&mut v), || sums(&mut mt)));
     });
-    let span = |p: usize, len: usize| ((p + r).min(len - 1) - p.saturating_sub(r) + 1) as f32;
+    let span = |p: usize, len: usize| crate::methods::features::window_span(p, len, r);
     let mut hv = vec![0.0f32; n];
     P::decode(&hist.data, &mut hv, hist.frac);
     let (mf, v, mt) = (&mf, &v, &mt);
     let mut planes: Vec<&mut [f32]> = oc.chunks_mut(n).collect();
     planes.push(&mut hv[..]);
     pool.planes(planes, RUN, |start, runs| {
+        let mut at = crate::methods::features::Walk::new(start, w);
         for j in 0..runs[0].len() {
-            let p = start + j;
-            let cnt = span(p % w, w) * span(p / w, h);
+            let (p, x, y) = at.next();
+            let cnt = span(x, w) * span(y, h);
             let (f, t) = (mf[p] / cnt, mt[p] / cnt);
             // The frame mean's variance: with the pair, the window's mean of
             // the per-pixel variance over the count; else the window's own
@@ -233,25 +239,25 @@ pub fn reject_stale<P: HostPrecision>(
 /// Records the history rejection at `z` in `plan`: built when `z > 0`, else
 /// skipped (replacing an earlier entry).
 pub fn reject_plan(plan: &mut Plan, z: f32) {
-    plan.built.retain(|s| *s != REJECT_STAGE);
-    plan.skipped.retain(|(s, _)| *s != REJECT_STAGE);
-    if z > 0.0 {
-        plan.built.push(REJECT_STAGE);
+    stage_plan(plan, REJECT_STAGE, z > 0.0, "--ta-reject 0");
+}
+
+/// Records `stage` in `plan` as built when `on`, else as skipped for `why`
+/// (replacing an earlier entry).
+fn stage_plan(plan: &mut Plan, stage: &'static str, on: bool, why: &str) {
+    plan.built.retain(|s| *s != stage);
+    plan.skipped.retain(|(s, _)| *s != stage);
+    if on {
+        plan.built.push(stage);
     } else {
-        plan.skipped.push((REJECT_STAGE, "--ta-reject 0".into()));
+        plan.skipped.push((stage, why.into()));
     }
 }
 
 /// Records the history clamp of width `k` in `plan`: built when `k > 0`,
 /// else skipped for `why` (replacing an earlier entry).
 pub fn clamp_plan(plan: &mut Plan, k: f32, why: &str) {
-    plan.built.retain(|s| *s != CLAMP_STAGE);
-    plan.skipped.retain(|(s, _)| *s != CLAMP_STAGE);
-    if k > 0.0 {
-        plan.built.push(CLAMP_STAGE);
-    } else {
-        plan.skipped.push((CLAMP_STAGE, why.into()));
-    }
+    stage_plan(plan, CLAMP_STAGE, k > 0.0, why);
 }
 
 /// The history clamp a learned method's weights were trained with
@@ -279,11 +285,7 @@ pub fn ta_clamp_for(file: &crate::nn::weights::File) -> Result<f32> {
 
 /// Checks a history clamp's width given by the user.
 pub fn check_clamp(k: f32) -> Result<f32> {
-    if k.is_finite() && (0.0..=1e6).contains(&k) {
-        Ok(k)
-    } else {
-        Err(HostError::Usage(format!("--ta-clamp: expected a width from 0 (off) to 1e6 standard deviations; got {k}")))
-    }
+    check_off_to_1e6(k, "--ta-clamp", "a width", "standard deviations")
 }
 
 /// The accumulated colour and the history counts of a step.

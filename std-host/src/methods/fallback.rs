@@ -172,7 +172,7 @@ pub fn to_input(
     let level = {
         let mut m = raw.clone();
         crate::methods::features::box_sum(&mut m, w, h, RADIUS);
-        let span = |p: usize, len: usize| ((p + RADIUS).min(len - 1) - p.saturating_sub(RADIUS) + 1) as f32;
+        let span = |p: usize, len: usize| crate::methods::features::window_span(p, len, RADIUS);
         // Runs of whole rows.
         ctx.pool.planes(vec![&mut m[..]], w * 16, |start, runs| {
             for (r, row) in runs[0].chunks_mut(w).enumerate() {

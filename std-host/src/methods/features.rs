@@ -559,9 +559,16 @@ fn window_max(pool: &Pool, src: &[f32], w: usize, h: usize, r: usize, out: &mut 
     });
 }
 
+/// Pixels of the window of radius `r` around position `p` along an axis of
+/// `len` (clipped at the ends), as f32: a box sum over the count is the mean.
+#[inline]
+pub(crate) fn window_span(p: usize, len: usize, r: usize) -> f32 {
+    ((p + r).min(len - 1) - p.saturating_sub(r) + 1) as f32
+}
+
 /// Pixel index and `(x, y)` of consecutive pixels of a row-major image
 /// `w` wide, from `start` on (one division per run, not per pixel).
-struct Walk {
+pub(crate) struct Walk {
     p: usize,
     x: usize,
     y: usize,
@@ -569,13 +576,13 @@ struct Walk {
 }
 
 impl Walk {
-    fn new(start: usize, w: usize) -> Self {
+    pub(crate) fn new(start: usize, w: usize) -> Self {
         let w = w.max(1);
         Walk { p: start, x: start % w, y: start / w, w }
     }
     /// This pixel's `(p, x, y)`; moves to the next.
     #[inline(always)]
-    fn next(&mut self) -> (usize, usize, usize) {
+    pub(crate) fn next(&mut self) -> (usize, usize, usize) {
         let r = (self.p, self.x, self.y);
         self.p += 1;
         self.x += 1;

@@ -647,6 +647,11 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     }
     let pool = crate::runtime::par::Pool::new(a.threads).map_err(HostError::Usage)?;
     let ckpt = checkpoint_path(&a.out);
+    // A checkpoint: the weights, Adam's state, the step and the sampler's.
+    let save_ckpt = |tr: &Trainer, step: u64, rng: &Rng, secs: f64| {
+        let meta = [("seconds", format!("{secs:.1}")), ta_meta.clone(), reject_meta.clone()];
+        model.save(&ckpt, tr, &meta, Some((step, rng)))
+    };
     let first_step = step;
     let start = Instant::now();
     let mut last_ckpt = Instant::now();
@@ -754,12 +759,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             None => {}
         }
         if last_ckpt.elapsed().as_secs_f64() >= a.checkpoint_minutes * 60.0 {
-            model.save(
-                &ckpt,
-                &tr,
-                &[("seconds", format!("{secs:.1}")), ta_meta.clone(), reject_meta.clone()],
-                Some((step, &rng)),
-            )?;
+            save_ckpt(&tr, step, &rng, secs)?;
             flush_log(&mut log)?;
             last_ckpt = Instant::now();
         }
@@ -768,12 +768,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         b.finish_and_clear();
     }
     let secs = seconds_before + start.elapsed().as_secs_f64();
-    model.save(
-        &ckpt,
-        &tr,
-        &[("seconds", format!("{secs:.1}")), ta_meta.clone(), reject_meta.clone()],
-        Some((step, &rng)),
-    )?;
+    save_ckpt(&tr, step, &rng, secs)?;
     model.save(&a.out, &tr, &[("steps", step.to_string()), ta_meta, reject_meta], None)?;
     let vp = if val.is_empty() { None } else { Some(validate_now(&tr)?) };
     eprintln!(
