@@ -44,6 +44,16 @@ def score(ref_dir, out_dir):
     return j
 
 
+def has_pair(seq_dir):
+    """Whether the sequence's first frame has the second estimate B.*."""
+    first = sorted(f for f in os.listdir(seq_dir) if f.startswith('frame_') and f.endswith('.exr'))[0]
+    with open(os.path.join(seq_dir, first), 'rb') as f:
+        head = f.read(1 << 16)
+    # The header's channel list: sorted names, each NUL-terminated and
+    # followed by 16 bytes whose last is 0 (the y sampling's high byte).
+    return b'\0B.R\0' in head
+
+
 def methods(weights):
     """(label, kind, args): kind 'mcd' runs mcdenoise denoise, 'oidn' and 'torch' the peers."""
     w = lambda n: os.path.join(weights, n)
@@ -83,6 +93,12 @@ def methods(weights):
         m.append(('pytorch wskp6', 'torch', ['--weights', w('torch_wskp6.safetensors'), '--layers', '6']))
     m.append(('oidn fast', 'oidn', ['--quality', 'fast']))
     m.append(('oidn high', 'oidn', ['--quality', 'high']))
+    # Where a frame has the pair (B.R, B.G, B.B), `atrous`, `sure-atrous` and
+    # `cross` filter the mean of the two estimates: twice the samples of the
+    # colour the learned methods and the OIDN rows above see. Their peers:
+    # the pair's mean itself and OIDN on it (only on frames with the pair).
+    m.append(('pair mean', 'oidn', ['--color', 'ab-mean', '--passthrough']))
+    m.append(('oidn high, pair mean', 'oidn', ['--quality', 'high', '--color', 'ab-mean']))
     return m
 
 
@@ -120,7 +136,9 @@ def main():
                     if label in earlier.get(seq, {}):
                         results[seq][label] = earlier[seq][label]
                     continue
-                od = os.path.join(tmp, seq, label.replace(' ', '_'))
+                if '--color' in args and not has_pair(sd):
+                    continue
+                od = os.path.join(tmp, seq, label.replace(' ', '_').replace(',', ''))
                 if kind == 'mcd':
                     run([mcd(), 'denoise'] + args + ['--threads', '2', sd, '-o', od])
                 elif kind == 'oidn':

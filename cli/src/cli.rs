@@ -148,6 +148,10 @@ fn firefly(s: &str) -> std::result::Result<f32, String> {
         .ok_or_else(|| format!("expected a number from 0 (off) up to 1e6, got '{s}'"))
 }
 
+fn pair_use(s: &str) -> std::result::Result<mcdenoise::methods::PairUse, String> {
+    mcdenoise::methods::PairUse::from_name(s.trim()).ok_or_else(|| format!("expected mean or first, got '{s}'"))
+}
+
 fn wskp_sizes(s: &str) -> std::result::Result<mcdenoise::methods::wskp::Sizes, String> {
     mcdenoise::methods::wskp::Sizes::parse(s)
 }
@@ -339,6 +343,12 @@ struct SettingsCli {
     /// mean (all of it by 2Z), so that a moving light does not lag (0: off) [default: 3]
     #[arg(long, value_name = "Z", value_parser = firefly)]
     ta_reject: Option<f32>,
+    /// A frame with a second estimate B.* of its pixels: 'mean' uses every sample (none, ta, WSKP
+    /// and AFN filter (A + B) / 2; atrous, sure-atrous and cross read both as always); 'first'
+    /// reads A alone, as if B.* were not there (to compare with a denoiser given one estimate;
+    /// cross needs the pair)
+    #[arg(long, value_name = "USE", default_value = "mean", value_parser = pair_use)]
+    pair: mcdenoise::methods::PairUse,
     /// WSKP: ImportanceNet layers (3 or 6) [default: the --weights file's, else 6]
     #[arg(long, value_name = "N", value_parser = layers, help_heading = "Learned methods")]
     layers: Option<usize>,
@@ -406,6 +416,7 @@ impl SettingsCli {
         s.cross_spatial_only = self.cross_spatial_only;
         s.afn_whole_maps = self.afn_whole_maps;
         s.emulate_int8 = self.emulate_int8;
+        s.pair = self.pair;
         s
     }
 }

@@ -167,6 +167,12 @@ fn settings_of(
                 "firefly_clamp" => s.firefly_clamp = Some(real(0.0, 1e6, "a number from 0 (off) up to 1e6")?),
                 "ta_clamp" => s.ta_clamp = Some(real(0.0, 1e6, "a number from 0 (off) up to 1e6")?),
                 "ta_reject" => s.ta_reject = Some(real(0.0, 1e6, "a number from 0 (off) up to 1e6")?),
+                "pair" => {
+                    let name: String = v.extract()?;
+                    s.pair = methods::PairUse::from_name(&name).ok_or_else(|| {
+                        PyValueError::new_err(format!("pair: expected 'mean' or 'first', got '{name}'"))
+                    })?;
+                }
                 "seed" => s.seed = v.extract()?,
                 "cross_lr" => s.cross_lr = real(0.0, 1.0, "a positive number up to 1")?,
                 "cross_spatial_only" => s.cross_spatial_only = v.extract()?,
@@ -181,8 +187,8 @@ fn settings_of(
                 other => {
                     return Err(PyTypeError::new_err(format!(
                         "unexpected keyword argument '{other}' (options: layers, weights, refine, fallback, \
-                         phi_color, firefly_clamp, ta_clamp, ta_reject, seed, cross_lr, cross_spatial_only, load_state, save_state, \
-                         isa)"
+                         phi_color, firefly_clamp, ta_clamp, ta_reject, pair, seed, cross_lr, cross_spatial_only, load_state, \
+                         save_state, isa)"
                     )))
                 }
             }
@@ -232,7 +238,10 @@ fn to_array<'py>(py: Python<'py>, planes: Vec<f32>, w: usize, h: usize) -> Bound
 /// train`), refine (AFN, default True), fallback (WSKP and AFN, default
 /// True), phi_color, firefly_clamp (à-trous), ta_clamp (ta, WSKP, AFN:
 /// the accumulation's history clamp), ta_reject (ta, WSKP, AFN: the history
-/// rejection's threshold, 0 off), seed, cross_lr, cross_spatial_only, load_state, save_state (cross), isa.
+/// rejection's threshold, 0 off), pair ("mean", the default: with a second
+/// estimate, none, ta, WSKP and AFN filter the mean of the two; "first":
+/// the second is ignored, cross refuses it), seed, cross_lr,
+/// cross_spatial_only, load_state, save_state (cross), isa.
 #[pyclass(name = "Denoiser", module = "mcdenoise")]
 struct PyDenoiser {
     state: std::sync::Mutex<State>,
@@ -295,10 +304,11 @@ impl PyDenoiser {
         second: Option<Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray3<f32>>> {
         py.check_signals()?;
-        let frame = frame_of(&color, &buffers_of(albedo, normal, depth, position, motion, second))?;
+        let mut frame = frame_of(&color, &buffers_of(albedo, normal, depth, position, motion, second))?;
         let (w, h) = (frame.width, frame.height);
         let mut guard = self.lock()?;
         let st = &mut *guard;
+        methods::apply_pair(st.kind, st.settings.pair, &mut frame);
         if st.den.is_none() {
             st.den = Some(methods::create(st.kind, &st.settings, &frame).map_err(err)?);
             st.ctx = Some(methods::context(&st.settings).map_err(err)?);
@@ -402,7 +412,8 @@ impl PyDenoiser {
 ///            `mcdenoise train`; default: the bundled weights), refine (AFN,
 ///            default True), fallback (WSKP and AFN, default True), phi_color and firefly_clamp (à-trous),
 ///            ta_clamp (ta, WSKP, AFN: the history clamp), ta_reject (ta,
-///            WSKP, AFN: the history rejection, 0 off), seed,
+///            WSKP, AFN: the history rejection, 0 off), pair ("mean" or
+///            "first": what a second estimate is used for), seed,
 ///            cross_lr and cross_spatial_only (cross), isa (scalar, avx2,
 ///            avx512)
 /// Returns the denoised colour, H x W x 3 float32. Errors: ValueError

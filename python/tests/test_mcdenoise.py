@@ -134,7 +134,9 @@ def test_sequences_keep_state_and_reset_forgets_it():
     again = d.denoise(f[2]["color"], **buffers(f[2]))
     # (The second frame takes all of the current one: the first has no history.)
     assert not np.array_equal(third, again), "history was used"
-    assert np.array_equal(again, f[2]["color"]), "after reset the frame starts a sequence"
+    # (The sample carries the second estimate: the colour is the pair's mean.)
+    assert np.array_equal(again, np.float32(0.5) * (f[2]["color"] + f[2]["second"])), \
+        "after reset the frame starts a sequence"
     assert d.frames == 1
 
 
@@ -206,6 +208,29 @@ def test_help_and_version():
                          capture_output=True, text=True, check=True).stdout
     assert out.strip() == "mcdenoise %s" % mcdenoise.__version__
     assert set(mcdenoise.METHODS) == {"none", "ta", "atrous", "sure-atrous", "wskp", "afn", "cross"}
+
+
+def test_pair_matches_the_command_line():
+    # The pair's mean (the default) and the first estimate alone, as the
+    # CLI's --pair mean / first give them; 'none' shows the colour used.
+    f = frames()
+    for use in ("mean", "first"):
+        for method in ("none", "wskp"):
+            with tempfile.TemporaryDirectory() as out:
+                subprocess.run([str(BIN), "denoise", "--quiet", "--float", "--threads", "2", "--method", method,
+                                "--pair", use, str(SAMPLE), "-o", out], check=True)
+                d = mcdenoise.Denoiser(method, threads=2, pair=use)
+                for i, fr in enumerate(f):
+                    got = d.denoise(fr["color"], **buffers(fr))
+                    want = read_rgb(pathlib.Path(out) / ("frame_%04d.exr" % i))
+                    assert np.array_equal(got, want), "%s pair=%s frame %d differs from the CLI" % (method, use, i)
+                    if method == "none":
+                        c = fr["color"] if use == "first" else np.float32(0.5) * (fr["color"] + fr["second"])
+                        assert np.array_equal(got, c), "none pair=%s frame %d is not the colour asked for" % (use, i)
+    with pytest.raises(ValueError, match="pair: expected"):
+        mcdenoise.Denoiser("ta", pair="both")
+    with pytest.raises(ValueError, match="--pair first"):
+        mcdenoise.denoise(f[0]["color"], **buffers(f[0]), method="cross", pair="first")
 
 
 def test_ta_reject_matches_the_command_line():

@@ -120,14 +120,16 @@ struct Job {
     size: (usize, usize),
 }
 
-/// The buffers `method` reads under `settings`: `ta`, WSKP and AFN read
-/// the second estimate only for the history rejection's noise and (WSKP,
-/// AFN) their fallback's.
+/// The buffers `method` reads under `settings`: the second estimate
+/// wherever it is used (under `--pair mean` every method averages it in or
+/// reads it as its own), none of it under `--pair first`.
 fn reads(method: MethodKind, settings: &Settings) -> [bool; 7] {
     let mut r = method.reads();
     let reject = settings.ta_reject != Some(0.0);
     let fallback = settings.fallback && matches!(method, MethodKind::Wskp | MethodKind::Afn);
-    if matches!(method, MethodKind::Ta | MethodKind::Wskp | MethodKind::Afn) && !reject && !fallback {
+    let mean = settings.pair == methods::PairUse::Mean;
+    let one_image = matches!(method, MethodKind::None | MethodKind::Ta | MethodKind::Wskp | MethodKind::Afn);
+    if settings.pair == methods::PairUse::First || (one_image && !mean && !reject && !fallback) {
         r[crate::io::frame::Buffer::ColorB.index()] = false;
     }
     r
@@ -209,6 +211,7 @@ fn read_frame(
         }
         frame.set(aux.buffer, other.data)?;
     }
+    methods::apply_pair(method, settings.pair, &mut frame);
     Ok(Read { frame, info, estimate: est, seconds: t0.elapsed() })
 }
 

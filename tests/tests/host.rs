@@ -145,6 +145,48 @@ fn temporal_accumulation_follows_the_blend_recurrence() {
     }
 }
 
+/// `--pair`: the pair's mean as the colour of the methods that filter one
+/// image (against the mean in f64), `B` kept for their noise; the other
+/// methods' frames untouched; `first` drops `B` and `cross` refuses it.
+#[test]
+fn the_pair_is_averaged_or_dropped_as_asked() {
+    use mcdenoise::methods::{apply_pair, PairUse};
+    let (w, h) = (5, 4);
+    let n = w * h;
+    let a: Vec<f32> = (0..3 * n).map(|i| 0.1 + 0.37 * (i as f32).sin().abs()).collect();
+    let b: Vec<f32> = (0..3 * n).map(|i| 3.0 * (i as f32 * 0.7).cos().abs()).collect();
+    let mut base = static_frame(w, h, 1.0, 0.0);
+    base.set(Buffer::Color, a.clone()).unwrap();
+    base.set(Buffer::ColorB, b.clone()).unwrap();
+    for kind in MethodKind::ALL {
+        let mut f = base.clone();
+        apply_pair(kind, PairUse::Mean, &mut f);
+        let one_image = matches!(kind, MethodKind::None | MethodKind::Ta | MethodKind::Wskp | MethodKind::Afn);
+        assert_eq!(f.colour_is_pair_mean, one_image, "{kind:?}");
+        assert_eq!(f.get(Buffer::ColorB).unwrap(), &b[..], "{kind:?}: B is kept");
+        let c = f.get(Buffer::Color).unwrap();
+        for i in 0..3 * n {
+            let want = if one_image { 0.5 * (a[i] as f64 + b[i] as f64) } else { a[i] as f64 };
+            assert!((c[i] as f64 - want).abs() <= 1e-7 * want, "{kind:?} {i}: {} against {want}", c[i]);
+        }
+        // A second call changes nothing.
+        let again = f.get(Buffer::Color).unwrap().to_vec();
+        apply_pair(kind, PairUse::Mean, &mut f);
+        assert_eq!(f.get(Buffer::Color).unwrap(), &again[..]);
+        let mut f = base.clone();
+        apply_pair(kind, PairUse::First, &mut f);
+        assert!(!f.has(Buffer::ColorB) && !f.colour_is_pair_mean && f.get(Buffer::Color).unwrap() == &a[..]);
+    }
+    // Without B the mean is a no-op.
+    let mut f = static_frame(w, h, 1.0, 0.0);
+    let before = f.get(Buffer::Color).unwrap().to_vec();
+    apply_pair(MethodKind::Ta, PairUse::Mean, &mut f);
+    assert!(!f.colour_is_pair_mean && f.get(Buffer::Color).unwrap() == &before[..]);
+    let settings = Settings { pair: PairUse::First, ..Settings::default() };
+    let err = methods::create(MethodKind::Cross, &settings, &base).err().expect("cross needs the pair").to_string();
+    assert!(err.contains("--pair first") && err.contains("cross"), "{err}");
+}
+
 #[test]
 fn plans_follow_the_channels_present() {
     let settings = Settings::default();

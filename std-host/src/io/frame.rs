@@ -109,6 +109,44 @@ impl Buffer {
     }
 }
 
+/// A frame's second estimate `B` of the colour's pixels, and whether the
+/// colour is the pair's mean ([`Frame::average_pair`]) or the estimate `A`.
+#[derive(Clone, Copy, Debug)]
+pub struct Pair<'a> {
+    /// `B.R, B.G, B.B` (3 planes).
+    pub b: &'a [f32],
+    /// The colour is `(A + B) / 2`.
+    pub colour_is_mean: bool,
+}
+
+impl Pair<'_> {
+    /// The colour's noise variance from its value `y` and `B`'s value `b`
+    /// at a pixel (any transform applied to both): one estimate's
+    /// `(A - B)^2 / 2`, the mean's `(M - B)^2 = (A - B)^2 / 4`, each with
+    /// the expectation of the colour's variance.
+    #[inline]
+    pub fn variance(&self, y: f32, b: f32) -> f32 {
+        let d = y - b;
+        if self.colour_is_mean {
+            d * d
+        } else {
+            0.5 * d * d
+        }
+    }
+
+    /// The best estimate from the colour's value `y` and `B`'s `b` (the
+    /// pair's mean), and that estimate's noise variance.
+    #[inline]
+    pub fn mean_and_variance(&self, y: f32, b: f32) -> (f32, f32) {
+        let d = y - b;
+        if self.colour_is_mean {
+            (y, d * d)
+        } else {
+            (0.5 * (y + b), 0.25 * d * d)
+        }
+    }
+}
+
 /// One frame: the buffers its file carries, planar f32.
 #[derive(Clone, Debug)]
 pub struct Frame {
@@ -122,6 +160,11 @@ pub struct Frame {
     planes: [Option<Aligned<f32>>; 7],
     /// Non-finite values replaced on load.
     pub replaced_nonfinite: usize,
+    /// The colour is the mean of the frame's two estimates and `B.*` the
+    /// second of them ([`Frame::average_pair`]): the pair's difference
+    /// `colour - B` is then half of `A - B`, and the colour's noise variance
+    /// is `(colour - B)^2` rather than one estimate's `(A - B)^2 / 2`.
+    pub colour_is_pair_mean: bool,
     /// The file's headers and the channels kept for writing them back
     /// (`None` for a frame made in memory).
     pub source: Option<std::sync::Arc<Source>>,
@@ -150,7 +193,7 @@ impl Frame {
         }
         let mut planes: [Option<Aligned<f32>>; 7] = Default::default();
         planes[0] = Some(Aligned::from_slice(&color));
-        Ok(Frame { path, width, height, planes, replaced_nonfinite: 0, source: None })
+        Ok(Frame { path, width, height, planes, replaced_nonfinite: 0, colour_is_pair_mean: false, source: None })
     }
 
     /// Adds or replaces a buffer (planar, `buffer.channels()` planes; kept
@@ -176,6 +219,27 @@ impl Frame {
         if self.has(Buffer::ColorB) {
             self.planes.swap(Buffer::Color.index(), Buffer::ColorB.index());
         }
+    }
+
+    /// Makes the colour the mean `(A + B) / 2` of the two estimates, in
+    /// place, and keeps `B` (the noise estimates need it; see
+    /// [`Frame::colour_is_pair_mean`]). Nothing happens without `B.*` or a
+    /// second time; returns whether the colour is the mean now.
+    pub fn average_pair(&mut self) -> bool {
+        if !self.colour_is_pair_mean {
+            let [Some(a), Some(b), ..] = &mut self.planes else { return false };
+            for (x, &y) in a.iter_mut().zip(b.iter()) {
+                *x = 0.5 * (*x + y);
+            }
+            self.colour_is_pair_mean = true;
+        }
+        true
+    }
+
+    /// The second estimate and the colour's relation to it, if the frame
+    /// has `B.*`.
+    pub fn pair(&self) -> Option<Pair<'_>> {
+        self.get(Buffer::ColorB).map(|b| Pair { b, colour_is_mean: self.colour_is_pair_mean })
     }
 
     /// The buffer's planes, if the file had them.
@@ -740,6 +804,7 @@ impl<'a> FrameReader<'a> {
             height: h,
             planes,
             replaced_nonfinite: replaced,
+            colour_is_pair_mean: false,
             source: Some(std::sync::Arc::new(source)),
         };
         Ok((frame, fetched))

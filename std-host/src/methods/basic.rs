@@ -149,7 +149,7 @@ fn check_off_to_1e6(v: f32, option: &str, what: &str, unit: &str) -> Result<f32>
 pub fn reject_stale<P: HostPrecision>(
     pool: &crate::runtime::par::Pool,
     a: &[f32],
-    b: Option<&[f32]>,
+    b: Option<crate::io::frame::Pair<'_>>,
     w: usize,
     h: usize,
     z0: f32,
@@ -160,7 +160,7 @@ pub fn reject_stale<P: HostPrecision>(
     if n == 0 || z0 <= 0.0 || a.len() < 3 * n || out.data.len() != 3 * n || hist.data.len() != n {
         return;
     }
-    let b = b.filter(|b| b.len() >= 3 * n);
+    let b = b.filter(|p| p.b.len() >= 3 * n);
     const RUN: usize = 1 << 14;
     let lum = |v: &[f32], p: usize| {
         let l = crate::methods::features::luminance(v[p], v[n + p], v[2 * n + p]);
@@ -181,12 +181,9 @@ pub fn reject_stale<P: HostPrecision>(
                 let p = start + j;
                 let la = lum(a, p);
                 let (f, d) = match b {
-                    // The mean of the pair; its variance is half of one
-                    // estimate's, which (a - b)^2 / 2 estimates.
-                    Some(b) => {
-                        let lb = lum(b, p);
-                        (0.5 * (la + lb), 0.25 * (la - lb) * (la - lb))
-                    }
+                    // The mean of the pair and its variance (half of one
+                    // estimate's, which (a - b)^2 / 2 estimates).
+                    Some(pair) => pair.mean_and_variance(la, lum(pair.b, p)),
                     None => (la, la * la),
                 };
                 runs[0][j] = f;
@@ -466,7 +463,7 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
                     if let Some(a) = f.get(Buffer::Color) {
                         let z0 = self.reject;
                         t.time("history rejection", || {
-                            reject_stale::<P>(&ctx.pool, a, f.get(Buffer::ColorB), w, h, z0, &mut out, &mut hist)
+                            reject_stale::<P>(&ctx.pool, a, f.pair(), w, h, z0, &mut out, &mut hist)
                         });
                     }
                 }
@@ -518,18 +515,23 @@ mod tests {
     /// that agrees with the frame (a static scene, its history 0.2 of the
     /// 1-spp noise) keeps nearly every pixel; one from before a light
     /// moved (three times or a third of the frame's level over the right half) gives
-    /// way to the frame there and keeps the left half; with the pair or
-    /// without it.
+    /// way to the frame there and keeps the left half; without the pair,
+    /// with it, and with the pair's mean as the colour.
     #[test]
     fn rejection_lets_a_moved_light_go_and_keeps_a_static_history() {
-        fn run<P: HostPrecision>(pair: bool) {
+        // `pair`: 0 none, 1 the second estimate beside A, 2 beside the
+        // pair's mean as the colour.
+        fn run<P: HostPrecision>(pair: u8) {
             let (w, h) = (64, 48);
             let n = w * h;
             let pool = crate::runtime::par::Pool::new(2).unwrap();
             let level: Vec<f32> = (0..3 * n).map(|i| 0.3 + 0.2 * ((i % n) % w) as f32 / w as f32).collect();
-            let a = noisy(&level, 7);
+            let mut a = noisy(&level, 7);
             let b = noisy(&level, 8);
-            let b = pair.then_some(&b[..]);
+            if pair == 2 {
+                a.iter_mut().zip(&b).for_each(|(x, &y)| *x = 0.5 * (*x + y));
+            }
+            let b = (pair > 0).then_some(crate::io::frame::Pair { b: &b[..], colour_is_mean: pair == 2 });
             // A history close to the truth: its noise a fifth of the frame's.
             let calm: Vec<f32> = level.iter().zip(noisy(&level, 9)).map(|(&l, v)| l + 0.2 * (v - l)).collect();
             for (name, factor) in [("static", 1.0f32), ("brighter before", 3.0), ("dimmer before", 1.0 / 3.0)] {
@@ -572,7 +574,7 @@ mod tests {
                 }
             }
         }
-        for pair in [true, false] {
+        for pair in [0, 1, 2] {
             run::<F32>(pair);
             run::<mcdenoise_core::Fixed>(pair);
         }

@@ -27,7 +27,9 @@
 //! above the noise: `M` is 2 where the window's mean noise variance is
 //! [`NOISY`] or more, falling to 1 (the plain estimate) on a clean input.
 //!
-//! Only on frames that are not 1-spp-noisy ([`fade`]): at 1 spp the noise
+//! Only on frames that are not 1-spp-noisy ([`fade`]; with the pair's mean
+//! as the colour, on the level of one of the two estimates the noise comes
+//! from, twice the mean's): at 1 spp the noise
 //! estimate of a dark region is itself unreliable (most samples are 0), and
 //! where the output is truly off (a light that moved, which the
 //! accumulation lags) the blend brought the 1-spp noise back in blotches:
@@ -61,6 +63,7 @@ use mcdenoise_core::atrous::noise;
 use mcdenoise_core::{View, ViewMut};
 
 use crate::error::Result;
+use crate::io::frame::Pair;
 use crate::methods::Ctx;
 
 /// Half the side of the window (7x7).
@@ -115,14 +118,15 @@ pub const STAGE_PAIR: &str = "fallback to the input (its noise from the pair A, 
 
 /// Moves the output `o` (3 planes, linear) towards the input `y` (3 planes)
 /// where it differs from it by more than `y`'s noise explains (see the
-/// module). `pair`: a second independent estimate of `y` (3 planes), whose
-/// difference from `y` gives the noise.
+/// module). `pair`: a second independent estimate of `y`'s pixels (3
+/// planes), whose difference from `y` gives the noise (`y` is one estimate
+/// or the pair's mean, [`Pair`]).
 #[allow(clippy::too_many_arguments)]
 pub fn to_input(
     ctx: &mut Ctx,
     o: &mut [f32],
     y: &[f32],
-    pair: Option<&[f32]>,
+    pair: Option<Pair<'_>>,
     albedo: &[f32],
     w: usize,
     h: usize,
@@ -145,11 +149,12 @@ pub fn to_input(
     let ly = &ly;
     let mut raw = vec![0.0f32; n];
     match pair {
-        Some(b) if b.len() == 3 * n => {
+        Some(p) if p.b.len() == 3 * n => {
+            let b = p.b;
             ctx.pool.planes(vec![&mut raw[..]], RUN, |start, runs| {
                 for (j, r) in runs[0].iter_mut().enumerate() {
                     let i = start + j;
-                    *r = (0..3).map(|c| pair_variance(ly[c * n + i], log(b[c * n + i]))).sum::<f32>() / 3.0;
+                    *r = (0..3).map(|c| p.variance(ly[c * n + i], log(b[c * n + i]))).sum::<f32>() / 3.0;
                 }
             });
         }
@@ -184,7 +189,12 @@ pub fn to_input(
         });
         *m.select_nth_unstable_by(n / 2, |a, b| a.total_cmp(b)).1
     };
-    let s = fade(level);
+    // The fade asks how reliable the noise estimate is, which depends on the
+    // samples of each estimate it comes from: with the pair's mean as the
+    // colour it comes from two estimates as noisy as one at twice the mean's
+    // level (a 1-spp pair stays a 1-spp frame here).
+    let per_estimate = if pair.is_some_and(|p| p.colour_is_mean && p.b.len() == 3 * n) { 2.0 } else { 1.0 };
+    let s = fade(per_estimate * level);
     if s >= 1.0 {
         return Ok(());
     }
@@ -248,15 +258,6 @@ pub fn to_input(
         }
     });
     Ok(())
-}
-
-/// One estimate's variance from the pair of independent estimates `a`, `b`
-/// of the same value: `(a - b)^2 / 2` (its expectation: the variance of
-/// either).
-#[inline]
-pub fn pair_variance(a: f32, b: f32) -> f32 {
-    let d = a - b;
-    0.5 * d * d
 }
 
 /// How far the fallback is faded out (0: fully on, 1: off) at the frame's
@@ -380,7 +381,7 @@ mod tests {
         let mut one = blurred.clone();
         to_input(&mut ctx, &mut one, &y, None, &alb, w, h, 1.0).unwrap();
         let mut two = blurred.clone();
-        to_input(&mut ctx, &mut two, &y, Some(&b), &alb, w, h, 1.0).unwrap();
+        to_input(&mut ctx, &mut two, &y, Some(Pair { b: &b, colour_is_mean: false }), &alb, w, h, 1.0).unwrap();
         assert!(e_blur > 100.0 * e_in, "the blur is the output's error: {e_blur} against the input's {e_in}");
         assert!(
             err(&one) > 0.9 * e_blur,
@@ -390,12 +391,95 @@ mod tests {
         assert!(err(&two) < 2.0 * e_in, "the pair: back to the input ({} against the input's {e_in})", err(&two));
     }
 
-    /// The pair's variance against the definition in f64.
+    /// The fade under the pair's mean: a pair of estimates whose own noise
+    /// level is past [`FADE_TO`] leaves the output alone when the colour is
+    /// their mean (whose level, half of it, is below [`FADE_TO`]), and the
+    /// same images read as one estimate beside a second (the flag off, a
+    /// quarter of that level) move the output back.
     #[test]
-    fn pair_variance_is_half_the_squared_difference() {
+    fn a_pairs_mean_is_faded_as_its_estimates_are() {
+        let mut ctx = crate::methods::context(&crate::methods::Settings::default()).unwrap();
+        let (w, h) = (32, 24);
+        let n = w * h;
+        let mut s = 777u32;
+        let mut noisy = || {
+            (0..3 * n)
+                .map(|_| {
+                    s ^= s << 13;
+                    s ^= s >> 17;
+                    s ^= s << 5;
+                    // Uniform in 1 +- 0.31: variance 0.032, about 0.008 in
+                    // log1p at 1 (slope 1/2).
+                    1.0 + 0.62 * ((s >> 8) as f32 / (1u32 << 24) as f32 - 0.5)
+                })
+                .collect::<Vec<f32>>()
+        };
+        let (a, b) = (noisy(), noisy());
+        let m: Vec<f32> = a.iter().zip(&b).map(|(x, y)| 0.5 * (x + y)).collect();
+        // The levels in f64: one estimate's and the mean's (median of the
+        // windows' means is close to the pixels' mean here).
+        let one: f64 =
+            a.iter().zip(&b).map(|(&x, &y)| 0.5 * ((x as f64).ln_1p() - (y as f64).ln_1p()).powi(2)).sum::<f64>()
+                / (3 * n) as f64;
+        assert!(one > 1.2 * FADE_TO as f64 && 0.5 * one < FADE_TO as f64, "the test's premise: {one}");
+        let alb = vec![0.5f32; 3 * n];
+        let wrong = vec![2.0f32; 3 * n];
+        let mut o = wrong.clone();
+        to_input(&mut ctx, &mut o, &m, Some(Pair { b: &b, colour_is_mean: true }), &alb, w, h, 1.0).unwrap();
+        assert_eq!(o, wrong, "a 1-spp pair's mean: faded out");
+        let mut o = wrong.clone();
+        to_input(&mut ctx, &mut o, &m, Some(Pair { b: &b, colour_is_mean: false }), &alb, w, h, 1.0).unwrap();
+        assert!(o.iter().zip(&wrong).filter(|(x, y)| x != y).count() > 3 * n / 2, "read as one estimate: on");
+    }
+
+    /// The pair's noise estimates against their definitions in f64, and
+    /// their expectations (Monte Carlo over normal pairs, in f64) against
+    /// the true variance of the colour, one estimate or the pair's mean.
+    #[test]
+    fn the_pairs_variance_has_the_colours_expectation() {
         for &(a, b) in &[(0.0f32, 0.0f32), (1.0, 0.5), (-2.0, 3.0), (1e-3, 2e-3), (7.5, 7.5)] {
             let d = a as f64 - b as f64;
-            assert!((pair_variance(a, b) as f64 - 0.5 * d * d).abs() <= 1e-6 * (1.0 + d * d), "{a} {b}");
+            let one = Pair { b: &[], colour_is_mean: false };
+            assert!((one.variance(a, b) as f64 - 0.5 * d * d).abs() <= 1e-6 * (1.0 + d * d), "{a} {b}");
+            let (m, v) = one.mean_and_variance(a, b);
+            assert!((m as f64 - 0.5 * (a as f64 + b as f64)).abs() <= 1e-6 * (1.0 + d.abs()));
+            assert!((v as f64 - 0.25 * d * d).abs() <= 1e-6 * (1.0 + d * d));
+            // The colour is the mean m = (a + b) / 2 of a and b.
+            let mean = Pair { b: &[], colour_is_mean: true };
+            let m = 0.5 * (a + b);
+            let dm = m as f64 - b as f64;
+            assert!((mean.variance(m, b) as f64 - dm * dm).abs() <= 1e-6 * (1.0 + d * d), "{a} {b}");
+            assert_eq!(mean.mean_and_variance(m, b), (m, mean.variance(m, b)));
+        }
+        // Normal pairs of standard deviation 0.3 around 1: one estimate's
+        // variance is 0.09, the mean's 0.045.
+        let mut s = 0x2545_f491_4f6c_dd1du64;
+        let mut normal = || {
+            let mut u = || {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                ((s >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+            };
+            let (u1, u2) = (u(), u());
+            (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        };
+        let (k, sd) = (200_000, 0.3);
+        let (mut one_sum, mut mean_sum, mut joint_sum) = (0.0f64, 0.0f64, 0.0f64);
+        for _ in 0..k {
+            let (a, b) = ((1.0 + sd * normal()) as f32, (1.0 + sd * normal()) as f32);
+            one_sum += Pair { b: &[], colour_is_mean: false }.variance(a, b) as f64;
+            joint_sum += Pair { b: &[], colour_is_mean: false }.mean_and_variance(a, b).1 as f64;
+            mean_sum += Pair { b: &[], colour_is_mean: true }.variance(0.5 * (a + b), b) as f64;
+        }
+        let var = sd * sd;
+        for (got, want, what) in [
+            (one_sum, var, "one estimate"),
+            (mean_sum, var / 2.0, "the mean"),
+            (joint_sum, var / 2.0, "the pair's mean from one estimate"),
+        ] {
+            let got = got / k as f64;
+            assert!((got / want - 1.0).abs() < 0.02, "{what}: {got} against {want}");
         }
     }
 

@@ -89,14 +89,15 @@ impl MethodKind {
             m
         };
         match self {
-            MethodKind::None => set(&[B::Color]),
-            // (B for the history rejection's noise, where the frame has it.)
+            // (B, where the frame has it, for the pair's mean; see PairUse.)
+            MethodKind::None => set(&[B::Color, B::ColorB]),
+            // (B for the pair's mean and the history rejection's noise.)
             MethodKind::Ta => set(&[B::Color, B::ColorB, B::Albedo, B::Normal, B::Depth, B::Position, B::Motion]),
             MethodKind::Atrous | MethodKind::SureAtrous => {
                 set(&[B::Color, B::ColorB, B::Albedo, B::Normal, B::Depth, B::Position])
             }
-            // (B for the fallback's and the history rejection's noise, where
-            // the frame has it.)
+            // (B for the pair's mean and the fallback's and the history
+            // rejection's noise, where the frame has it.)
             MethodKind::Wskp | MethodKind::Afn => {
                 set(&[B::Color, B::ColorB, B::Albedo, B::Normal, B::Depth, B::Position, B::Motion])
             }
@@ -224,6 +225,58 @@ pub struct Settings {
     /// WSKP and AFN: emulate 8-bit networks (weights and activations
     /// rounded to `i8`/`u8`; float precisions only), to measure their error.
     pub emulate_int8: bool,
+    /// What the methods make of a frame's second estimate `B.*`.
+    pub pair: PairUse,
+}
+
+/// What the methods make of a frame's second estimate `B.*` (an independent
+/// estimate of the same pixels, e.g. the second half of the samples).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum PairUse {
+    /// Every sample: `none`, `ta`, WSKP and AFN filter the mean `(A + B) / 2`
+    /// ([`Frame::average_pair`]; their noise estimates take the mean's
+    /// smaller variance from the pair), `atrous`, `sure-atrous` and `cross`
+    /// read both estimates as they always do.
+    #[default]
+    Mean,
+    /// `A` alone, as if the frame had no `B.*` (it is not read): the
+    /// frame as a render of `A`'s samples, for comparing with denoisers
+    /// that see one estimate. `cross` regresses on the pair and refuses it.
+    First,
+}
+
+impl PairUse {
+    /// The option's value: `mean` or `first`.
+    pub fn name(self) -> &'static str {
+        match self {
+            PairUse::Mean => "mean",
+            PairUse::First => "first",
+        }
+    }
+
+    /// From the option's value.
+    pub fn from_name(s: &str) -> Option<Self> {
+        match s {
+            "mean" => Some(PairUse::Mean),
+            "first" => Some(PairUse::First),
+            _ => None,
+        }
+    }
+}
+
+/// Readies a frame for `kind` under `pair`, in place (before the denoiser
+/// sees it; the CLI and the Python package both do): under
+/// [`PairUse::Mean`] the colour becomes the pair's mean for the methods
+/// that filter one image, under [`PairUse::First`] `B.*` is dropped.
+pub fn apply_pair(kind: MethodKind, pair: PairUse, frame: &mut Frame) {
+    match pair {
+        PairUse::Mean => {
+            if matches!(kind, MethodKind::None | MethodKind::Ta | MethodKind::Wskp | MethodKind::Afn) {
+                frame.average_pair();
+            }
+        }
+        PairUse::First => frame.remove(crate::io::frame::Buffer::ColorB),
+    }
 }
 
 impl Default for Settings {
@@ -247,6 +300,7 @@ impl Default for Settings {
             cross_spatial_only: false,
             afn_whole_maps: false,
             emulate_int8: false,
+            pair: PairUse::Mean,
         }
     }
 }
@@ -313,6 +367,11 @@ impl Denoiser for OneSize {
 }
 
 fn create_unchecked(kind: MethodKind, settings: &Settings, first: &Frame) -> Result<Box<dyn Denoiser>> {
+    if kind == MethodKind::Cross && settings.pair == PairUse::First {
+        return Err(HostError::Usage(
+            "--pair first: cross regresses on the two estimates A and B.*; it needs the pair".into(),
+        ));
+    }
     if settings.emulate_int8 && !matches!(kind, MethodKind::Wskp | MethodKind::Afn) {
         return Err(HostError::Usage(format!("--emulate-int8: {} has no network to emulate (wskp, afn)", kind.name())));
     }

@@ -832,7 +832,7 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
         if self.fallback {
             let albedo = f.require(crate::io::frame::Buffer::Albedo, "afn")?;
             let colour = f.require(crate::io::frame::Buffer::Color, "afn")?;
-            let pair = f.get(crate::io::frame::Buffer::ColorB);
+            let pair = f.pair();
             t.time("fallback", || crate::methods::fallback::to_input(ctx, &mut out, colour, pair, albedo, w, h, e))?;
         }
         Ok(out)

@@ -637,7 +637,7 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
         }
         if self.fallback {
             let colour = f.require(crate::io::frame::Buffer::Color, "wskp")?;
-            let pair = f.get(crate::io::frame::Buffer::ColorB);
+            let pair = f.pair();
             t.time("fallback", || crate::methods::fallback::to_input(ctx, &mut out, colour, pair, a, w, h, exposure))?;
         }
         Ok(out)
