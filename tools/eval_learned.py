@@ -93,12 +93,22 @@ def methods(weights):
         m.append(('pytorch wskp6', 'torch', ['--weights', w('torch_wskp6.safetensors'), '--layers', '6']))
     m.append(('oidn fast', 'oidn', ['--quality', 'fast']))
     m.append(('oidn high', 'oidn', ['--quality', 'high']))
-    # Where a frame has the pair (B.R, B.G, B.B), `atrous`, `sure-atrous` and
-    # `cross` filter the mean of the two estimates: twice the samples of the
-    # colour the learned methods and the OIDN rows above see. Their peers:
-    # the pair's mean itself and OIDN on it (only on frames with the pair).
-    m.append(('pair mean', 'oidn', ['--color', 'ab-mean', '--passthrough']))
-    m.append(('oidn high, pair mean', 'oidn', ['--quality', 'high', '--color', 'ab-mean']))
+    # Every row above sees one estimate, the frames' R,G,B (`--pair first`;
+    # OIDN's default), except `cross`, which regresses on the pair. The
+    # rows "(pair)" see both estimates where the frames carry them: the
+    # methods as users run them (`--pair mean`, the default: twice the
+    # samples), beside OIDN on the pair's mean.
+    m = [(l, k, a + ['--pair', 'first'] if k == 'mcd' and l != 'cross' else a) for l, k, a in m]
+    m += [('input (pair)', 'mcd', ['--method', 'none']),
+          ('ta (pair)', 'mcd', ['--method', 'ta']),
+          ('atrous (pair)', 'mcd', ['--method', 'atrous']),
+          ('sure-atrous (pair)', 'mcd', ['--method', 'sure-atrous'])]
+    for name, args in (('wskp3', ['--method', 'wskp', '--layers', '3']), ('wskp6', ['--method', 'wskp', '--layers', '6']),
+                       ('afn', ['--method', 'afn'])):
+        if os.path.exists(w(name + '.safetensors')):
+            m.append(('%s f32 (pair)' % name, 'mcd', args + ['--weights', w(name + '.safetensors')]))
+    m.append(('oidn fast (pair)', 'oidn', ['--quality', 'fast', '--color', 'ab-mean']))
+    m.append(('oidn high (pair)', 'oidn', ['--quality', 'high', '--color', 'ab-mean']))
     return m
 
 
@@ -111,8 +121,11 @@ def main():
     p.add_argument('--merge', help='an earlier quality.json: its results are kept where this run does not '
                                    'redo them (with --only, to re-score some methods; for the contact sheets '
                                    'copy its frames/ directory into OUT_DIR first)')
-    p.add_argument('--summary', default='input,ta,atrous,sure-atrous,wskp3 f32,wskp6 f32,afn f32,cross,oidn fast,oidn high',
+    p.add_argument('--summary', default='input,ta,atrous,sure-atrous,wskp3 f32,wskp6 f32,afn f32,oidn fast,oidn high',
                    help='methods of the summary table (PSNR and relMSE per sequence)')
+    p.add_argument('--summary-pair', default='input (pair),ta (pair),atrous (pair),sure-atrous (pair),wskp3 f32 (pair),'
+                                             'wskp6 f32 (pair),afn f32 (pair),cross,oidn fast (pair),oidn high (pair)',
+                   help='methods of the second summary table: both estimates, where the frames carry them')
     p.add_argument('--sheets', default='input,ta,wskp3 f32,wskp6 f32,afn f32,oidn high',
                    help='methods of the contact sheet written per sequence (OUT_DIR/sheet_SEQ.png: the last '
                         'frame of each, then the reference; needs tools/.venv for OpenEXR); empty: none')
@@ -136,9 +149,9 @@ def main():
                     if label in earlier.get(seq, {}):
                         results[seq][label] = earlier[seq][label]
                     continue
-                if '--color' in args and not has_pair(sd):
+                if label.endswith('(pair)') and not has_pair(sd):
                     continue
-                od = os.path.join(tmp, seq, label.replace(' ', '_').replace(',', ''))
+                od = os.path.join(tmp, seq, label.replace(' ', '_').replace('(', '').replace(')', ''))
                 if kind == 'mcd':
                     run([mcd(), 'denoise'] + args + ['--threads', '2', sd, '-o', od])
                 elif kind == 'oidn':
@@ -188,16 +201,21 @@ def main():
             f.write('frame,' + ','.join(labels) + '\n')
             for i in range(len(r[labels[0]]['psnr'])):
                 f.write('%d,' % i + ','.join('%.3f' % r[l]['psnr'][i] for l in labels) + '\n')
-    cols = [c for c in a.summary.split(',') if any(c in r for r in results.values())]
-    summary = ['| sequence | ' + ' | '.join(cols) + ' |', '|---|' + '---|' * len(cols)]
-    for seq, r in results.items():
-        cells = []
-        for c in cols:
-            m = r.get(c, {}).get('mean')
-            cells.append('%.2f (%.4f)' % (m['psnr'], m['relmse']) if m else '')
-        summary.append('| %s | %s |' % (seq, ' | '.join(cells)))
+    def table(labels):
+        cols = [c for c in labels.split(',') if any(c in r for r in results.values())]
+        rows = ['| sequence | ' + ' | '.join(cols) + ' |', '|---|' + '---|' * len(cols)]
+        for seq, r in results.items():
+            cells = []
+            for c in cols:
+                m = r.get(c, {}).get('mean')
+                cells.append('%.2f (%.4f)' % (m['psnr'], m['relmse']) if m else '')
+            if any(cells):
+                rows.append('| %s | %s |' % (seq, ' | '.join(cells)))
+        return '\n'.join(rows)
     with open(os.path.join(a.output, 'quality.md'), 'w') as f:
-        f.write('PSNR dB (relMSE), mean over the frames\n\n' + '\n'.join(summary) + '\n' + '\n'.join(lines) + '\n')
+        f.write('PSNR dB (relMSE), mean over the frames; one estimate each (cross: the pair)\n\n'
+                + table(a.summary) + '\n\nWith the pair, where the frames carry it\n\n' + table(a.summary_pair)
+                + '\n' + '\n'.join(lines) + '\n')
     print('wrote %s' % a.output)
 
 

@@ -4,7 +4,6 @@ the CPU denoiser users would otherwise pick, run on the same frames as
 mcdenoise and scored with `mcdenoise score`.
 
     oidn_denoise.py IN_DIR -o OUT_DIR [--quality high] [--threads N] [--no-aux]
-    oidn_denoise.py IN_DIR -o OUT_DIR --color ab-mean --passthrough   (the pair's mean, not denoised)
     oidn_denoise.py --time 1280x720 [--threads 2] [--quality high] [--frame F.exr]
 
 Each frame is filtered on its own (OIDN is not temporal): the RT filter in
@@ -164,11 +163,6 @@ def cmd_denoise(a):
     if not names:
         raise SystemExit('no frame_*.exr in %s' % a.input)
     os.makedirs(a.output, exist_ok=True)
-    if a.passthrough:
-        for name in names:
-            write_rgb(os.path.join(a.output, name), frame_images(os.path.join(a.input, name), a.color)[0])
-        print('%s colour of %d frames into %s, not denoised' % (a.color, len(names), a.output))
-        return
     den, total = None, 0.0
     for name in names:
         color, albedo, normal = frame_images(os.path.join(a.input, name), a.color)
@@ -195,8 +189,6 @@ def main():
     p.add_argument('--color', default='1spp', choices=['1spp', 'ab-mean'])
     p.add_argument('--no-aux', action='store_true', help='colour only (no albedo, no normal)')
     p.add_argument('--clean-aux', action='store_true', help="set cleanAux: albedo and normal are noise-free")
-    p.add_argument('--passthrough', action='store_true',
-                   help='write the colour as --color selects it, not denoised (the input the pair-mean rows score)')
     p.add_argument('--time', metavar='WxH', help='time one frame of this size')
     p.add_argument('--reps', type=int, default=10)
     p.add_argument('--frame', help='the frame tiled for --time')

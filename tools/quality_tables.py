@@ -9,7 +9,10 @@ and the reduced precisions of the learned methods against their f32.
 import json
 import sys
 
-GAIN = ['ta', 'atrous', 'sure-atrous', 'wskp3 f32', 'wskp6 f32', 'afn f32', 'cross', 'oidn fast', 'oidn high']
+GAIN = ['ta', 'atrous', 'sure-atrous', 'wskp3 f32', 'wskp6 f32', 'afn f32', 'oidn fast', 'oidn high']
+# Both estimates (eval_learned's "(pair)" rows; cross always reads the pair).
+GAIN_PAIR = ['ta (pair)', 'atrous (pair)', 'sure-atrous (pair)', 'wskp3 f32 (pair)', 'wskp6 f32 (pair)',
+             'afn f32 (pair)', 'cross', 'oidn fast (pair)', 'oidn high (pair)']
 
 
 def mean(v, label, key):
@@ -17,21 +20,30 @@ def mean(v, label, key):
     return m[key] if m else None
 
 
-def main():
-    r = json.load(open(sys.argv[1]))
-    print('PSNR dB: the input, then each method as gain over the input / distance from OIDN high\n')
-    cols = [c for c in GAIN if c != 'oidn high' and any(c in v for v in r.values())]
-    print('| sequence | input | OIDN high | ' + ' | '.join(cols) + ' |')
+def gap_table(r, gain, base, high):
+    cols = [c for c in gain if c != high and any(c in v for v in r.values())]
+    print('| sequence | %s | %s | ' % (base, high.replace('oidn', 'OIDN')) + ' | '.join(cols) + ' |')
     print('|---|---|---|' + '---|' * len(cols))
     for seq, v in r.items():
-        inp, hi = mean(v, 'input', 'psnr'), mean(v, 'oidn high', 'psnr')
+        inp, hi = mean(v, base, 'psnr'), mean(v, high, 'psnr')
+        if inp is None:
+            continue
         cells = ['%.2f' % inp, '%.2f (+%.2f)' % (hi, hi - inp) if hi is not None else '']
         for c in cols:
             p = mean(v, c, 'psnr')
             cells.append('' if p is None else '%+.2f / %+.2f' % (p - inp, p - hi) if hi is not None else '%+.2f' % (p - inp))
         print('| %s | %s |' % (seq, ' | '.join(cells)))
+
+
+def main():
+    r = json.load(open(sys.argv[1]))
+    print('PSNR dB, one estimate each: the input, then each method as gain over the input / distance from OIDN high\n')
+    gap_table(r, GAIN, 'input', 'oidn high')
+    if any('input (pair)' in v for v in r.values()):
+        print('\nPSNR dB with the pair (both estimates; OIDN on their mean), as above\n')
+        gap_table(r, GAIN_PAIR, 'input (pair)', 'oidn high (pair)')
     print('\nrelMSE (the input\'s first)\n')
-    cols = ['input'] + [c for c in GAIN if any(c in v for v in r.values())]
+    cols = [c for c in ['input'] + GAIN + ['input (pair)'] + GAIN_PAIR if any(c in v for v in r.values())]
     print('| sequence | ' + ' | '.join(cols) + ' |')
     print('|---|' + '---|' * len(cols))
     for seq, v in r.items():
