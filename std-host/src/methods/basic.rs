@@ -139,8 +139,9 @@ fn check_off_to_1e6(v: f32, option: &str, what: &str, unit: &str) -> Result<f32>
 /// mean luminance of the frame `a` (of `(a + b) / 2` with the second
 /// estimate `b`) and of the accumulated colour, and `se` the standard
 /// error of `m_f` (from the pair's squared difference with `b`, else from
-/// the window's own variance, which counts the signal's variation as noise
-/// and so rejects less), `z = |m_f - m_t| / se`; the accumulated colour
+/// the squared differences of neighbouring pixels, which count a little of
+/// the signal's variation as noise and so reject a little less; with one
+/// estimate the test also has half the samples), `z = |m_f - m_t| / se`; the accumulated colour
 /// moves towards the frame by `beta = clamp(z / z0 - 1, 0, 1)` and the
 /// history counts shrink by `1 - beta`. A static scene's windows stay
 /// under `z0` (about 2 % of the pixels of a lounge pan at `z0 = 3`);
@@ -177,14 +178,21 @@ pub fn reject_stale<P: HostPrecision>(
     {
         let oc = &oc;
         pool.planes(vec![&mut mf[..], &mut v[..], &mut mt[..]], RUN, |start, runs| {
+            let mut at = crate::methods::features::Walk::new(start, w);
             for j in 0..runs[0].len() {
-                let p = start + j;
+                let (p, x, y) = at.next();
                 let la = lum(a, p);
                 let (f, d) = match b {
                     // The mean of the pair and its variance (half of one
                     // estimate's, which (a - b)^2 / 2 estimates).
                     Some(pair) => pair.mean_and_variance(la, lum(pair.b, p)),
-                    None => (la, la * la),
+                    // One estimate: half the squared difference from the
+                    // right and the lower neighbour, whose expectation is the
+                    // noise variance plus half the squared one-pixel change
+                    // of the signal (a difference-based estimate, after
+                    // Rice 1984): a window's own variance would count every
+                    // gradient, edge and shadow in it as noise.
+                    None => (la, neighbour_variance(|q| lum(a, q), p, x, y, w, h)),
                 };
                 runs[0][j] = f;
                 runs[1][j] = d;
@@ -209,13 +217,9 @@ pub fn reject_stale<P: HostPrecision>(
             let (p, x, y) = at.next();
             let cnt = span(x, w) * span(y, h);
             let (f, t) = (mf[p] / cnt, mt[p] / cnt);
-            // The frame mean's variance: with the pair, the window's mean of
-            // the per-pixel variance over the count; else the window's own
+            // The frame mean's variance: the window's mean of the per-pixel
             // variance over the count.
-            let var = match b {
-                Some(_) => v[p] / cnt / cnt,
-                None => (v[p] / cnt - f * f).max(0.0) / cnt,
-            };
+            let var = v[p] / cnt / cnt;
             let z = (f - t).abs() / var.max(1e-20).sqrt();
             let beta = if z.is_finite() { (z / z0 - 1.0).clamp(0.0, 1.0) } else { 0.0 };
             if beta > 0.0 {
@@ -231,6 +235,27 @@ pub fn reject_stale<P: HostPrecision>(
     });
     crate::runtime::precision::encode_par::<P>(pool, &oc, &mut out.data, out.frac);
     P::encode(&hv, &mut hist.data, hist.frac);
+}
+
+/// One estimate's noise variance at pixel `p = (x, y)` of a `w x h` image
+/// `v`: half the squared difference from its right and its lower
+/// neighbour, averaged over those inside (0 for a single pixel). Its
+/// expectation is the noise variance plus half the squared one-pixel change
+/// of the signal (Rice 1984).
+#[inline]
+pub fn neighbour_variance(v: impl Fn(usize) -> f32, p: usize, x: usize, y: usize, w: usize, h: usize) -> f32 {
+    let here = v(p);
+    let (mut sum, mut k) = (0.0f32, 0.0f32);
+    for q in [(x + 1 < w).then_some(p + 1), (y + 1 < h).then_some(p + w)].into_iter().flatten() {
+        let d = here - v(q);
+        sum += 0.5 * d * d;
+        k += 1.0;
+    }
+    if k > 0.0 {
+        sum / k
+    } else {
+        0.0
+    }
 }
 
 /// Records the history rejection at `z` in `plan`: built when `z > 0`, else
@@ -578,6 +603,58 @@ mod tests {
             run::<F32>(pair);
             run::<mcdenoise_core::Fixed>(pair);
         }
+    }
+
+    /// The one-estimate noise variance against its definition in f64, and
+    /// on a steep ramp under normal noise its mean against its expectation
+    /// (the noise variance plus a quarter of the squared slope: half the
+    /// horizontal step's square, averaged with the flat vertical step),
+    /// where a 9x9 window's own variance is several times the noise's.
+    #[test]
+    fn neighbour_variance_counts_the_noise_and_little_of_a_ramp() {
+        let (w, h) = (97, 61);
+        let mut s = 0x9e37_79b9_7f4a_7c15u64;
+        let mut normal = || {
+            let mut u = || {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                ((s >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+            };
+            let (u1, u2) = (u(), u());
+            (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        };
+        let (slope, sd) = (0.25f64, 0.3f64);
+        let img: Vec<f32> = (0..w * h).map(|p| (1.0 + slope * (p % w) as f64 + sd * normal()) as f32).collect();
+        let (mut sum, mut win) = (0.0f64, 0.0f64);
+        for y in 0..h {
+            for x in 0..w {
+                let p = y * w + x;
+                let got = neighbour_variance(|q| img[q], p, x, y, w, h) as f64;
+                let mut d = Vec::new();
+                if x + 1 < w {
+                    d.push(0.5 * (img[p] as f64 - img[p + 1] as f64).powi(2));
+                }
+                if y + 1 < h {
+                    d.push(0.5 * (img[p] as f64 - img[p + w] as f64).powi(2));
+                }
+                let want = if d.is_empty() { 0.0 } else { d.iter().sum::<f64>() / d.len() as f64 };
+                assert!((got - want).abs() <= 1e-5 * (1.0 + want), "({x},{y}): {got} against {want}");
+                sum += got;
+                if (4..w - 4).contains(&x) && (4..h - 4).contains(&y) {
+                    let vals: Vec<f64> = (y - 4..=y + 4)
+                        .flat_map(|yy| (x - 4..=x + 4).map(move |xx| yy * w + xx))
+                        .map(|q| img[q] as f64)
+                        .collect();
+                    let m = vals.iter().sum::<f64>() / 81.0;
+                    win += vals.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / 81.0 / ((w - 8) * (h - 8)) as f64;
+                }
+            }
+        }
+        let mean = sum / (w * h) as f64;
+        let expect = sd * sd + 0.25 * slope * slope;
+        assert!((mean / expect - 1.0).abs() < 0.05, "{mean} against {expect}");
+        assert!(win > 4.0 * sd * sd, "the window's own variance: {win}");
     }
 
     /// A static 12x10 sequence: `frames` of flat `level` with uniform noise
