@@ -120,16 +120,12 @@ struct Job {
     size: (usize, usize),
 }
 
-/// The buffers `method` reads under `settings`: the second estimate
-/// wherever it is used (under `--pair mean` every method averages it in or
-/// reads it as its own), none of it under `--pair first`.
+/// The buffers `method` reads under `settings`: under `--pair mean` every
+/// method that can use the second estimate reads it (averaged in, or read
+/// as its own), under `--pair first` none does.
 fn reads(method: MethodKind, settings: &Settings) -> [bool; 7] {
     let mut r = method.reads();
-    let reject = settings.ta_reject != Some(0.0);
-    let fallback = settings.fallback && matches!(method, MethodKind::Wskp | MethodKind::Afn);
-    let mean = settings.pair == methods::PairUse::Mean;
-    let one_image = matches!(method, MethodKind::None | MethodKind::Ta | MethodKind::Wskp | MethodKind::Afn);
-    if settings.pair == methods::PairUse::First || (one_image && !mean && !reject && !fallback) {
+    if settings.pair == methods::PairUse::First {
         r[crate::io::frame::Buffer::ColorB.index()] = false;
     }
     r

@@ -613,17 +613,7 @@ mod tests {
     #[test]
     fn neighbour_variance_counts_the_noise_and_little_of_a_ramp() {
         let (w, h) = (97, 61);
-        let mut s = 0x9e37_79b9_7f4a_7c15u64;
-        let mut normal = || {
-            let mut u = || {
-                s ^= s << 13;
-                s ^= s >> 7;
-                s ^= s << 17;
-                ((s >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-            };
-            let (u1, u2) = (u(), u());
-            (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-        };
+        let mut normal = crate::methods::test_noise::normal(0x9e37_79b9_7f4a_7c15);
         let (slope, sd) = (0.25f64, 0.3f64);
         let img: Vec<f32> = (0..w * h).map(|p| (1.0 + slope * (p % w) as f64 + sd * normal()) as f32).collect();
         let (mut sum, mut win) = (0.0f64, 0.0f64);

@@ -453,17 +453,7 @@ mod tests {
         }
         // Normal pairs of standard deviation 0.3 around 1: one estimate's
         // variance is 0.09, the mean's 0.045.
-        let mut s = 0x2545_f491_4f6c_dd1du64;
-        let mut normal = || {
-            let mut u = || {
-                s ^= s << 13;
-                s ^= s >> 7;
-                s ^= s << 17;
-                ((s >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-            };
-            let (u1, u2) = (u(), u());
-            (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-        };
+        let mut normal = crate::methods::test_noise::normal(0x2545_f491_4f6c_dd1d);
         let (k, sd) = (200_000, 0.3);
         let (mut one_sum, mut mean_sum, mut joint_sum) = (0.0f64, 0.0f64, 0.0f64);
         for _ in 0..k {

@@ -177,6 +177,26 @@ impl Timings {
     }
 }
 
+/// Helpers the methods' unit tests share.
+#[cfg(test)]
+pub(crate) mod test_noise {
+    /// Standard normal draws, deterministic from `seed` (xorshift64, then
+    /// Box-Muller).
+    pub(crate) fn normal(seed: u64) -> impl FnMut() -> f64 {
+        let mut s = seed;
+        move || {
+            let mut u = || {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                ((s >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+            };
+            let (u1, u2) = (u(), u());
+            (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        }
+    }
+}
+
 /// Settings every method shares.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Settings {
