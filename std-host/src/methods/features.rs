@@ -113,6 +113,20 @@ pub const EXCESS_RATIO: f32 = 4.0;
 /// surfaces around it, so its neighbours (a Cornell box light's dark rim,
 /// ref 0.01) get nothing of it.
 pub const LIGHT_RATIO: f32 = 1.0;
+/// The reach of the averaging of partly covered pixels' excess
+/// ([`split_excess`], its last step).
+pub const PARTIAL_RADIUS: usize = 3;
+/// Two partly covered pixels count as covered alike where their albedos
+/// are within this fraction of the larger (per channel, plus 0.01) ...
+pub const PARTIAL_ALBEDO_TOL: f32 = 0.3;
+/// ... their normals within this cosine ...
+pub const PARTIAL_NORMAL_COS: f32 = 0.9;
+/// ... and their depths within this fraction of the larger.
+pub const PARTIAL_DEPTH_TOL: f32 = 0.1;
+/// A partly covered pixel whose albedo (largest channel) is under this
+/// keeps its own excess: a near-black surface beside a brighter one reads as
+/// covered in part, and its excess is a glossy highlight, not a light.
+pub const PARTIAL_MIN_ALBEDO: f32 = 0.1;
 /// The reach of the learned filters (WSKP's 13x13 windows, AFN's 7x7 at
 /// half scale), over which those surroundings are measured.
 pub const EXCESS_RADIUS: usize = 7;
@@ -310,7 +324,21 @@ pub fn transfer(x: f32) -> f32 {
 ///
 /// So a light stays sharp and bleeds at most `EXCESS_RATIO` times the
 /// level of the walls around it into them; continuous in the albedo.
-pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usize, exposure: f32, excess: &mut [f32]) {
+///
+/// With `geometry` (the frame's normal and depth planes, 3 + 1), the
+/// excess of the pixels a light covers in part is then averaged over those
+/// covered alike ([`smooth_partial`]): at a few samples per pixel a thin
+/// light's or a light's edge's coverage is noise the filters do not see.
+pub fn split_excess(
+    pool: &Pool,
+    c: &mut [f32],
+    albedo: &[f32],
+    geometry: Option<(&[f32], &[f32])>,
+    w: usize,
+    h: usize,
+    exposure: f32,
+    excess: &mut [f32],
+) {
     let n = w * h;
     if n == 0 || c.len() < 3 * n || excess.len() < 3 * n || albedo.len() < 3 * n {
         return;
@@ -388,6 +416,8 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
             }
         }
     });
+    // (The pixels a light covers in part, before the lights with albedo join.)
+    let partial = tight.clone();
     // An emitter with albedo (a light's own diffuse surface): bright and
     // smooth, its 3x3 neighbourhood within SMOOTH of its largest value. Noisy
     // surfaces are not; a smooth one's excess stays at its pixel as
@@ -472,6 +502,89 @@ pub fn split_excess(pool: &Pool, c: &mut [f32], albedo: &[f32], w: usize, h: usi
                 let e = if k > 0.0 { k * (v - level).max(0.0) } else { 0.0 };
                 cs[ch][i] = v - e;
                 ex[ch][i] = e;
+            }
+        }
+    });
+    if let Some((normal, depth)) = geometry {
+        smooth_partial(pool, excess, &partial, albedo, normal, depth, w, h);
+    }
+}
+
+/// The last step of [`split_excess`]: the excess of a pixel a light
+/// covers in part is the light's radiance times the part covered, and at a
+/// few samples per pixel each sample hits the light or misses it: a strip
+/// light at 1 spp comes out as a dotted line, a light's edge as a ragged
+/// one. Such a pixel's excess becomes the mean over the partly covered
+/// pixels within [`PARTIAL_RADIUS`] covered alike: albedo (which drops with
+/// the part covered, and renderers' albedo buffers are cleaner than their
+/// colour), normal and depth (a light's edge in front of another surface
+/// does not spread onto that surface's texture). Pixels with albedo under
+/// [`PARTIAL_MIN_ALBEDO`] keep theirs.
+#[allow(clippy::too_many_arguments)]
+fn smooth_partial(
+    pool: &Pool,
+    excess: &mut [f32],
+    partial: &[f32],
+    albedo: &[f32],
+    normal: &[f32],
+    depth: &[f32],
+    w: usize,
+    h: usize,
+) {
+    let n = w * h;
+    if !partial.iter().any(|&t| t > 0.0) || normal.len() < 3 * n || depth.len() < n || albedo.len() < 3 * n {
+        return;
+    }
+    let r = PARTIAL_RADIUS;
+    let src = excess[..3 * n].to_vec();
+    let src = &src;
+    let at3 = |b: &[f32], p: usize| [b[p], b[n + p], b[2 * n + p]];
+    let len = |v: [f32; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    pool.planes(excess[..3 * n].chunks_mut(n).collect(), 1 << 12, |start, runs| {
+        let mut at = Walk::new(start, w);
+        for i in 0..runs[0].len() {
+            let (p, x, y) = at.next();
+            let ap = at3(albedo, p);
+            if partial[p] <= 0.0 || ap[0].max(ap[1]).max(ap[2]) < PARTIAL_MIN_ALBEDO {
+                continue;
+            }
+            let (np, dp) = (at3(normal, p), depth[p]);
+            let lp = len(np);
+            let (mut sum, mut cnt) = ([0.0f32; 3], 0u32);
+            for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                for xx in x.saturating_sub(r)..(x + r + 1).min(w) {
+                    let q = yy * w + xx;
+                    if partial[q] <= 0.0 {
+                        continue;
+                    }
+                    let aq = at3(albedo, q);
+                    let alike = (0..3)
+                        .all(|c| (aq[c] - ap[c]).abs() <= PARTIAL_ALBEDO_TOL * aq[c].abs().max(ap[c].abs()) + 0.01);
+                    // Normals alike (both missing counts as alike).
+                    let nq = at3(normal, q);
+                    let lq = len(nq);
+                    let dot = np[0] * nq[0] + np[1] * nq[1] + np[2] * nq[2];
+                    let facing =
+                        if lp < 0.5 || lq < 0.5 { lp < 0.5 && lq < 0.5 } else { dot >= PARTIAL_NORMAL_COS * lp * lq };
+                    let dq = depth[q];
+                    let near = !(dp.is_finite() && dq.is_finite())
+                        || (dq - dp).abs() <= PARTIAL_DEPTH_TOL * dq.abs().max(dp.abs());
+                    if alike && facing && near {
+                        for (c, s) in sum.iter_mut().enumerate() {
+                            *s += src[c * n + q];
+                        }
+                        cnt += 1;
+                    }
+                }
+            }
+            // (The pixel itself always counts: cnt >= 1.)
+            if cnt > 0 {
+                for (c, run) in runs.iter_mut().enumerate() {
+                    let v = sum[c] / cnt as f32;
+                    if v.is_finite() {
+                        run[i] = v;
+                    }
+                }
             }
         }
     });
@@ -844,7 +957,7 @@ mod tests {
         let albedo = vec![0.7f32; 3 * n];
         let orig = c.clone();
         let mut excess = vec![0.0f32; 3 * n];
-        split_excess(&pool(), &mut c, &albedo, w, h, 1.0, &mut excess);
+        split_excess(&pool(), &mut c, &albedo, None, w, h, 1.0, &mut excess);
         for i in 0..3 * n {
             assert!((c[i] + excess[i] - orig[i]).abs() <= 1e-5 * orig[i], "conserved at {i}");
             assert!(excess[i] >= 0.0 && c[i] >= 0.0, "non-negative at {i}");
@@ -864,8 +977,112 @@ mod tests {
         }
         // The same wall without the light: no excess anywhere.
         let mut c: Vec<f32> = orig.iter().map(|&v| if v == 50.0 { 3.0 } else { v }).collect();
-        split_excess(&pool(), &mut c, &albedo, w, h, 1.0, &mut excess);
+        split_excess(&pool(), &mut c, &albedo, None, w, h, 1.0, &mut excess);
         assert!(excess.iter().all(|&e| e == 0.0), "a bright smooth wall is no light");
+    }
+
+    /// A strip light one pixel thin across a ceiling (albedo 0.8; the strip's
+    /// pixels half covered, albedo 0.4) at 1 spp: each strip pixel's sample
+    /// hits the light (60) or misses it (the ceiling's 0.3). Without
+    /// geometry the excess is the dotted line it came as; with it, each strip
+    /// pixel's excess is the mean (f64) of the strip's excess within
+    /// PARTIAL_RADIUS (the partly covered ones: a lone hit is a firefly and
+    /// keeps its own). A row of another surface (normal turned away, the
+    /// same albedo drop: a texture) 3 pixels from the strip gets none of
+    /// its light (and does when it faces the ceiling's way); near-black
+    /// pixels beside the ceiling keep their own; the filtered part `c` is
+    /// the same either way.
+    #[test]
+    fn a_partly_covered_strip_gets_its_mean_excess() {
+        let (w, h) = (48, 16);
+        let n = w * h;
+        let (strip, other, black) = (6usize, 9usize, 12usize);
+        let mut seed = 0x2545_f491_u32;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed
+        };
+        let mut c = vec![0.0f32; 3 * n];
+        let mut albedo = vec![0.8f32; 3 * n];
+        let mut normal = vec![0.0f32; 3 * n];
+        let depth = vec![2.0f32; n];
+        for y in 0..h {
+            for x in 0..w {
+                let p = y * w + x;
+                let on_strip = y == strip && (4..w - 4).contains(&x);
+                let hit = on_strip && next() % 2 == 0;
+                let v = if hit { 60.0 } else { 0.3 * (0.9 + 0.2 * (next() % 100) as f32 / 100.0) };
+                let a = if on_strip || y == other {
+                    0.4
+                } else if y == black {
+                    0.02
+                } else {
+                    0.8
+                };
+                for ch in 0..3 {
+                    c[ch * n + p] = if y == black && x % 5 == 0 { 20.0 } else { v };
+                    albedo[ch * n + p] = a;
+                }
+                normal[2 * n + p] = 1.0;
+                if y == other {
+                    (normal[p], normal[2 * n + p]) = (1.0, 0.0);
+                }
+            }
+        }
+        let (mut c0, mut ex0) = (c.clone(), vec![0.0f32; 3 * n]);
+        split_excess(&pool(), &mut c0, &albedo, None, w, h, 1.0, &mut ex0);
+        let (mut c1, mut ex1) = (c.clone(), vec![0.0f32; 3 * n]);
+        split_excess(&pool(), &mut c1, &albedo, Some((&normal, &depth)), w, h, 1.0, &mut ex1);
+        assert_eq!(c0, c1, "the filtered part is the same");
+        let r = PARTIAL_RADIUS;
+        let (mut zeros, mut hits) = (0, 0);
+        for x in 4..w - 4 {
+            let p = strip * w + x;
+            if ex0[p] == 0.0 {
+                zeros += 1;
+            } else if ex0[p] > 30.0 {
+                hits += 1;
+            }
+            // Partly covered: a miss, or a hit with another within 2
+            // pixels (a lone hit is a firefly, averaged whole: its own
+            // excess stays).
+            let lum = |q: usize| c[strip * w + q];
+            let partial = |q: usize| {
+                lum(q) < 1.0
+                    || (q.saturating_sub(2)..=(q + 2).min(w - 5)).any(|o| o != q && o >= 4 && 2.0 * lum(o) >= lum(q))
+            };
+            if !partial(x) {
+                assert_eq!(ex1[p], ex0[p], "a lone hit at x {x} keeps its own");
+                continue;
+            }
+            let near: Vec<usize> = (x.saturating_sub(r).max(4)..=(x + r).min(w - 5)).filter(|&q| partial(q)).collect();
+            let mean = near.iter().map(|&q| ex0[strip * w + q] as f64).sum::<f64>() / near.len() as f64;
+            for ch in 0..3 {
+                let got = ex1[ch * n + p] as f64;
+                assert!(
+                    (got - mean).abs() <= 1e-4 * mean.max(1.0),
+                    "strip x {x} channel {ch}: {got} against the mean {mean}"
+                );
+            }
+        }
+        assert!(zeros > 8 && hits > 8, "the unsmoothed strip is dotted: {zeros} misses, {hits} hits");
+        for x in 0..w {
+            for y in [other, black] {
+                let p = y * w + x;
+                assert_eq!(ex1[p], ex0[p], "row {y} x {x} keeps its own excess");
+            }
+        }
+        // Facing the ceiling's way, the same row is covered alike and takes
+        // the strip's light.
+        let mut facing = normal.clone();
+        for x in 0..w {
+            (facing[other * w + x], facing[2 * n + other * w + x]) = (0.0, 1.0);
+        }
+        let (mut c2, mut ex2) = (c.clone(), vec![0.0f32; 3 * n]);
+        split_excess(&pool(), &mut c2, &albedo, Some((&facing, &depth)), w, h, 1.0, &mut ex2);
+        assert!((0..w).any(|x| ex2[other * w + x] > 1.0), "without the normals' guard the light spreads");
     }
 
     /// The envelope against its definition, `max_q b(q) DECAY^(|dx|+|dy|)`.

@@ -165,8 +165,9 @@ pub fn inputs(
     features::clamp_fireflies(pool, ct, t, a, f.width, f.height);
     // The TA image's excess is dropped (`ex` holds it for a moment): the
     // 1-spp image's goes back.
-    features::split_excess(pool, ct, a, f.width, f.height, e, ex);
-    features::split_excess(pool, c1, a, f.width, f.height, e, ex);
+    features::split_excess(pool, ct, a, None, f.width, f.height, e, ex);
+    let geometry = (f.require(Buffer::Normal, "afn")?, f.require(Buffer::Depth, "afn")?);
+    features::split_excess(pool, c1, a, Some(geometry), f.width, f.height, e, ex);
     Ok(e)
 }
 

@@ -203,7 +203,8 @@ pub fn inputs(
     let e = features::exposure(f.require(Buffer::Color, "wskp")?, w, h);
     features::network_inputs(pool, f, "wskp", e, &[t], d, x, &mut [&mut *c])?;
     features::clamp_fireflies(pool, c, t, a, w, h);
-    features::split_excess(pool, c, a, w, h, e, ex);
+    let geometry = (f.require(Buffer::Normal, "wskp")?, f.require(Buffer::Depth, "wskp")?);
+    features::split_excess(pool, c, a, Some(geometry), w, h, e, ex);
     Ok(e)
 }
 
