@@ -87,6 +87,13 @@ pub const ALBEDO_TOL: f32 = 0.2;
 /// See [`ALBEDO_TOL`].
 pub const ALBEDO_FLOOR: f32 = 0.02;
 
+/// The window holds only the pixels whose input is within this of the
+/// centre's (mean over the channels, exposure-normalised `log1p` colour,
+/// about 22 %): a light's edge row that has the walls' albedo (Mitsuba's
+/// Cornell box) is its own window, not one diluted by the light's and the
+/// wall's pixels, whose squared differences say nothing of its error.
+pub const RANGE: f32 = 0.2;
+
 /// Bytes per pixel [`to_input`] allocates for the time it runs.
 pub const TEMP_BYTES: u64 = 4 * 7;
 
@@ -215,9 +222,9 @@ pub fn to_input(
         });
     }
     // Window sums over the pixels of the same albedo as the centre (within
-    // ALBEDO_TOL of the larger, per channel): a light's partially covered
-    // edge beside a wall reads as noise and would hide the wall pixel's
-    // error.
+    // ALBEDO_TOL of the larger, per channel) and an input within RANGE of
+    // its: a light's partially covered edge beside a wall reads as noise
+    // and would hide the wall pixel's error.
     let mut ks = vec![1.0f32; n];
     ctx.pool.planes(vec![&mut ks[..]], 1 << 12, |start, runs| {
         for (j, k) in runs[0].iter_mut().enumerate() {
@@ -232,7 +239,8 @@ pub fn to_input(
                         let aq = albedo[c * n + q];
                         (aq - ap[c]).abs() <= ALBEDO_TOL * aq.abs().max(ap[c].abs()) + ALBEDO_FLOOR
                     });
-                    if same {
+                    let close = (0..3).map(|c| (ly[c * n + q] - ly[c * n + i]).abs()).sum::<f32>() / 3.0 <= RANGE;
+                    if same && close {
                         vs += raw[q];
                         es += err[q];
                         cnt += 1.0;
@@ -342,6 +350,43 @@ mod tests {
     /// one-estimate noise reads the checker as noise and keeps the blur; the
     /// pair's difference gives the true noise and the output returns to the
     /// input.
+    /// The window holds only inputs within RANGE of the centre's: a dark
+    /// half whose output is within its noise of the input stays as the
+    /// filter left it beside a bright half (the same albedo, 5 pixels on)
+    /// whose output is off by 40 % and returns to its input.
+    #[test]
+    fn the_window_holds_only_inputs_near_the_centres() {
+        let mut ctx = crate::methods::context(&crate::methods::Settings::default()).unwrap();
+        let (w, h) = (24, 20);
+        let n = w * h;
+        let mut s = 4242u32;
+        let y: Vec<f32> = (0..3 * n)
+            .map(|i| {
+                s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                let base = if (i % n) % w < w / 2 { 0.1 } else { 1.0 };
+                base * (1.0 + 0.05 * ((s >> 8) as f32 / (1u32 << 24) as f32 - 0.5))
+            })
+            .collect();
+        let dark = |i: usize| (i % n) % w < w / 2;
+        let o0: Vec<f32> = y.iter().enumerate().map(|(i, &v)| if dark(i) { v * 1.01 } else { v * 0.6 }).collect();
+        let mut o = o0.clone();
+        to_input(&mut ctx, &mut o, &y, None, &vec![0.5; 3 * n], w, h, 1.0).unwrap();
+        for i in 0..3 * n {
+            let x = (i % n) % w;
+            if dark(i) && x >= 2 && (i % n) / w >= 3 && (i % n) / w < h - 3 {
+                assert!((o[i] - o0[i]).abs() <= 1e-4 * o0[i], "dark pixel {i} (x {x}) moved: {} -> {}", o0[i], o[i]);
+            }
+            if !dark(i) && x >= w / 2 + 4 {
+                assert!(
+                    (o[i] - y[i]).abs() < 0.1 * y[i],
+                    "bright pixel {i} not back at its input: {} against {}",
+                    o[i],
+                    y[i]
+                );
+            }
+        }
+    }
+
     #[test]
     fn the_pair_tells_texture_from_noise() {
         let mut ctx = crate::methods::context(&crate::methods::Settings::default()).unwrap();
