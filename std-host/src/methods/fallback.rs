@@ -15,9 +15,11 @@
 //! Everything is taken in exposure-normalised `log1p` colour (at 1 spp
 //! linear values are ruled by single fireflies; the exposure keeps
 //! `denoise(k x) = k denoise(x)`), summed over the channels and over the
-//! pixels of a 7x7 window whose albedo matches the centre's (one pixel's
-//! estimate is all noise; a light's partially covered edge beside a wall
-//! reads as noise and, counted, would hide the wall pixel's error).
+//! pixels of a 7x7 window whose albedo matches the centre's and whose input
+//! is within [`RANGE`] of its (one pixel's estimate is all noise; a light's
+//! partially covered edge beside a wall reads as noise and, counted, would
+//! hide the wall pixel's error, and the wall's and the light's pixels say
+//! nothing of the edge row's).
 //!
 //! The current frame, not the temporal accumulation the filters read: the
 //! accumulation's error is the output's too (a light that moved lags in
