@@ -329,6 +329,7 @@ pub fn transfer(x: f32) -> f32 {
 /// excess of the pixels a light covers in part is then averaged over those
 /// covered alike ([`smooth_partial`]): at a few samples per pixel a thin
 /// light's or a light's edge's coverage is noise the filters do not see.
+#[allow(clippy::too_many_arguments)]
 pub fn split_excess(
     pool: &Pool,
     c: &mut [f32],
