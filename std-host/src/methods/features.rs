@@ -327,7 +327,7 @@ pub fn transfer(x: f32) -> f32 {
 ///
 /// With `geometry` (the frame's normal and depth planes, 3 + 1), the
 /// excess of the pixels a light covers in part is then averaged over those
-/// covered alike ([`smooth_partial`]): at a few samples per pixel a thin
+/// covered alike (`smooth_partial`): at a few samples per pixel a thin
 /// light's or a light's edge's coverage is noise the filters do not see.
 #[allow(clippy::too_many_arguments)]
 pub fn split_excess(
