@@ -120,9 +120,9 @@ pub const PARTIAL_RADIUS: usize = 3;
 /// are within this fraction of the larger (per channel, plus 0.01) ...
 pub const PARTIAL_ALBEDO_TOL: f32 = 0.3;
 /// ... their normals within this cosine ...
-pub const PARTIAL_NORMAL_COS: f32 = 0.9;
+pub const PARTIAL_NORMAL_COS: f32 = 0.97;
 /// ... and their depths within this fraction of the larger.
-pub const PARTIAL_DEPTH_TOL: f32 = 0.1;
+pub const PARTIAL_DEPTH_TOL: f32 = 0.02;
 /// A partly covered pixel whose albedo (largest channel) is under this
 /// keeps its own excess: a near-black surface beside a brighter one reads as
 /// covered in part, and its excess is a glossy highlight, not a light.
