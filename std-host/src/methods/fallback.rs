@@ -241,8 +241,8 @@ pub fn to_input(
                         let aq = albedo[c * n + q];
                         (aq - ap[c]).abs() <= ALBEDO_TOL * aq.abs().max(ap[c].abs()) + ALBEDO_FLOOR
                     });
-                    let close = (0..3).map(|c| (ly[c * n + q] - ly[c * n + i]).abs()).sum::<f32>() / 3.0 <= RANGE;
-                    if same && close {
+                    let close = || (0..3).map(|c| (ly[c * n + q] - ly[c * n + i]).abs()).sum::<f32>() / 3.0 <= RANGE;
+                    if same && close() {
                         vs += raw[q];
                         es += err[q];
                         cnt += 1.0;
@@ -321,6 +321,7 @@ pub fn shrink(v: f32, e: f32, margin: f32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::methods::test_noise::lcg;
 
     /// A flat input whose output carries a step: the window sees no noise in
     /// the input, so the output returns to it; an input with strong noise
@@ -336,22 +337,13 @@ mod tests {
         assert!(o.iter().all(|&v| (v - 0.5).abs() < 1e-6), "a clean input is kept");
         // Noisy input (deterministic hash noise), output its mean.
         let mut s = 12345u32;
-        let y: Vec<f32> = (0..3 * n)
-            .map(|_| {
-                s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-                0.5 + ((s >> 8) as f32 / (1u32 << 24) as f32 - 0.5)
-            })
-            .collect();
+        let y: Vec<f32> = (0..3 * n).map(|_| 0.5 + (lcg(&mut s) - 0.5)).collect();
         let mean = y.iter().sum::<f32>() / (3 * n) as f32;
         let mut o = vec![mean; 3 * n];
         to_input(&mut ctx, &mut o, &y, None, &vec![0.5; 3 * n], w, h, 1.0).unwrap();
         assert!(o.iter().all(|&v| (v - mean).abs() < 1e-6), "noise removed is not put back");
     }
 
-    /// A fine checker (2 px) with light noise, its output blurred: the
-    /// one-estimate noise reads the checker as noise and keeps the blur; the
-    /// pair's difference gives the true noise and the output returns to the
-    /// input.
     /// The window holds only inputs within RANGE of the centre's: a dark
     /// half whose output is within its noise of the input stays as the
     /// filter left it beside a bright half (the same albedo, 5 pixels on)
@@ -364,9 +356,8 @@ mod tests {
         let mut s = 4242u32;
         let y: Vec<f32> = (0..3 * n)
             .map(|i| {
-                s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
                 let base = if (i % n) % w < w / 2 { 0.1 } else { 1.0 };
-                base * (1.0 + 0.05 * ((s >> 8) as f32 / (1u32 << 24) as f32 - 0.5))
+                base * (1.0 + 0.05 * (lcg(&mut s) - 0.5))
             })
             .collect();
         let dark = |i: usize| (i % n) % w < w / 2;
@@ -389,6 +380,10 @@ mod tests {
         }
     }
 
+    /// A fine checker (2 px) with light noise, its output blurred: the
+    /// one-estimate noise reads the checker as noise and keeps the blur; the
+    /// pair's difference gives the true noise and the output returns to the
+    /// input.
     #[test]
     fn the_pair_tells_texture_from_noise() {
         let mut ctx = crate::methods::context(&crate::methods::Settings::default()).unwrap();
@@ -397,14 +392,7 @@ mod tests {
         let truth: Vec<f32> =
             (0..3 * n).map(|i| if ((i % n) % w / 2 + (i % n) / w / 2) % 2 == 0 { 0.1 } else { 0.6 }).collect();
         let mut s = 777u32;
-        let mut noisy = |t: &[f32]| -> Vec<f32> {
-            t.iter()
-                .map(|&v| {
-                    s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-                    v * (1.0 + 0.02 * ((s >> 8) as f32 / (1u32 << 24) as f32 - 0.5))
-                })
-                .collect()
-        };
+        let mut noisy = |t: &[f32]| -> Vec<f32> { t.iter().map(|&v| v * (1.0 + 0.02 * (lcg(&mut s) - 0.5))).collect() };
         let (y, b) = (noisy(&truth), noisy(&truth));
         // The output: the input's 3x3 mean (the checker blurred away).
         let mut blurred = vec![0.0f32; 3 * n];
@@ -448,13 +436,11 @@ mod tests {
         let mut ctx = crate::methods::context(&crate::methods::Settings::default()).unwrap();
         let (w, h) = (32, 24);
         let n = w * h;
-        let mut s = 777u32;
+        let mut next = crate::methods::test_noise::xorshift32(777);
         let mut noisy = || {
             (0..3 * n)
                 .map(|_| {
-                    s ^= s << 13;
-                    s ^= s >> 17;
-                    s ^= s << 5;
+                    let s = next();
                     // Uniform in 1 +- 0.31: variance 0.032, about 0.008 in
                     // log1p at 1 (slope 1/2).
                     1.0 + 0.62 * ((s >> 8) as f32 / (1u32 << 24) as f32 - 0.5)

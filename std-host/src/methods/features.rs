@@ -417,8 +417,9 @@ pub fn split_excess(
             }
         }
     });
-    // (The pixels a light covers in part, before the lights with albedo join.)
-    let partial = tight.clone();
+    // (The pixels a light covers in part, before the lights with albedo
+    // join; kept only for the averaging, which needs the geometry.)
+    let partial = geometry.map(|_| tight.clone());
     // An emitter with albedo (a light's own diffuse surface): bright and
     // smooth, its 3x3 neighbourhood within SMOOTH of its largest value. Noisy
     // surfaces are not; a smooth one's excess stays at its pixel as
@@ -506,7 +507,7 @@ pub fn split_excess(
             }
         }
     });
-    if let Some((normal, depth)) = geometry {
+    if let (Some((normal, depth)), Some(partial)) = (geometry, partial) {
         smooth_partial(pool, excess, &partial, albedo, normal, depth, w, h);
     }
 }
@@ -896,13 +897,7 @@ mod tests {
     /// and the values, NaN ignored), borders clipped.
     #[test]
     fn window_max_is_the_windows_largest() {
-        let mut seed = 0x9e37_79b9_u32;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 17;
-            seed ^= seed << 5;
-            seed
-        };
+        let mut next = crate::methods::test_noise::xorshift32(0x9e37_79b9_u32);
         for &(w, h, r) in &[(1usize, 1usize, 1usize), (7, 5, 1), (9, 13, 2), (4, 3, 6), (33, 17, 2)] {
             let src: Vec<f32> = (0..w * h)
                 .map(|_| match next() % 10 {
@@ -941,13 +936,11 @@ mod tests {
         let (w, h) = (40, 30);
         let n = w * h;
         let light = |x: usize, y: usize| (14..26).contains(&x) && (10..20).contains(&y);
-        let mut seed = 0x1234_5678_u32;
+        let mut next = crate::methods::test_noise::xorshift32(0x1234_5678);
         let mut c = vec![0.0f32; 3 * n];
         for y in 0..h {
             for x in 0..w {
-                seed ^= seed << 13;
-                seed ^= seed >> 17;
-                seed ^= seed << 5;
+                let seed = next();
                 // +-15 % noise on the wall; the light is constant.
                 let v = if light(x, y) { 50.0 } else { 3.0 * (0.85 + 0.3 * (seed % 1000) as f32 / 1000.0) };
                 for ch in 0..3 {
@@ -998,13 +991,7 @@ mod tests {
         let (w, h) = (48, 16);
         let n = w * h;
         let (strip, other, black) = (6usize, 9usize, 12usize);
-        let mut seed = 0x2545_f491_u32;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 17;
-            seed ^= seed << 5;
-            seed
-        };
+        let mut next = crate::methods::test_noise::xorshift32(0x2545_f491_u32);
         let mut c = vec![0.0f32; 3 * n];
         let mut albedo = vec![0.8f32; 3 * n];
         let mut normal = vec![0.0f32; 3 * n];
@@ -1013,7 +1000,7 @@ mod tests {
             for x in 0..w {
                 let p = y * w + x;
                 let on_strip = y == strip && (4..w - 4).contains(&x);
-                let hit = on_strip && next() % 2 == 0;
+                let hit = on_strip && next().is_multiple_of(2);
                 let v = if hit { 60.0 } else { 0.3 * (0.9 + 0.2 * (next() % 100) as f32 / 100.0) };
                 let a = if on_strip || y == other {
                     0.4

@@ -177,7 +177,7 @@ impl Timings {
     }
 }
 
-/// Helpers the methods' unit tests share.
+/// Helpers the methods' unit tests share: deterministic noise.
 #[cfg(test)]
 pub(crate) mod test_noise {
     /// Standard normal draws, deterministic from `seed` (xorshift64, then
@@ -194,6 +194,23 @@ pub(crate) mod test_noise {
             let (u1, u2) = (u(), u());
             (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
         }
+    }
+
+    /// Marsaglia's xorshift32 from `seed`: each call the next value.
+    pub(crate) fn xorshift32(mut seed: u32) -> impl FnMut() -> u32 {
+        move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed
+        }
+    }
+
+    /// The next of a linear congruential sequence (Numerical Recipes'
+    /// constants), uniform in [0, 1).
+    pub(crate) fn lcg(s: &mut u32) -> f32 {
+        *s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        (*s >> 8) as f32 / (1u32 << 24) as f32
     }
 }
 
