@@ -42,7 +42,7 @@ import zlib
 
 import numpy as np
 
-SPLITS = {'train': 1, 'val': 2, 'test': 3}
+SPLITS = {'train': 1, 'val': 2, 'test': 3, 'hi': 4}
 METALS = ['Au', 'Ag', 'Cu', 'Al', 'Cr', 'W', 'Ni_palik', 'TiN', 'Mo']
 
 
@@ -552,7 +552,7 @@ def camera_path(rng, origin, target, extent):
     return str(kind), keys
 
 
-def make_scene(split, seed, index, textures, envmaps, res, frames, ref_spp):
+def make_scene(split, seed, index, textures, envmaps, res, frames, ref_spp, spp_choices=None):
     rng = np.random.default_rng([seed, SPLITS[split], index])
     b = Builder(rng, Materials(rng, textures))
     exposure = float(10 ** rng.uniform(-1.3, 1.0))
@@ -571,12 +571,14 @@ def make_scene(split, seed, index, textures, envmaps, res, frames, ref_spp):
             k['origin'] = [round(min(max(o[0], -w + 0.15), w - 0.15), 4), round(min(max(o[1], 0.2), h - 0.15), 4),
                            round(min(max(o[2], -d + 0.15), d - 0.15), 4)]
     spp = int(rng.choice([1, 1, 1, 1, 1, 2, 4, 8, 16][:9]))
+    if spp_choices:  # drawn apart, so that the scene is the same whatever the choices
+        spp = int(np.random.default_rng([seed, SPLITS[split], index, 1]).choice(spp_choices))
     albedo = 'mitsuba' if rng.random() < 0.5 else 'reflectance'
     return {
         'description': 'generated (tools/gen_scenes.py): split %s, seed %d, index %d: %s set, camera %s, '
                        '%d shapes, %d emitters, exposure %.3g, %d spp, albedo %s'
                        % (split, seed, index, kind, motion, len(b.shapes), len(b.emitters), exposure, spp, albedo),
-        'resolution': list(res), 'frames': frames, 'spp': spp, 'ref_spp': ref_spp, 'aov_spp': 16,
+        'resolution': list(res), 'frames': frames, 'spp': spp, 'ref_spp': ref_spp, 'aov_spp': max(16, spp),
         'seed': int(rng.integers(1, 2 ** 31)), 'max_depth': int(rng.choice([6, 8, 8, 10])), 'albedo': albedo,
         'camera': {'fov': round(float(rng.uniform(35, 75)), 2), 'fov_axis': 'x', 'up': [0, 1, 0], 'keyframes': keys},
         'materials': {}, 'shapes': b.shapes, 'emitters': b.emitters,
@@ -595,11 +597,14 @@ def main():
     p.add_argument('--frames', type=int, default=8)
     p.add_argument('--ref-spp', type=int, default=128,
                    help='samples of the target (an unbiased noisy target suffices for training)')
+    p.add_argument('--spp', default='',
+                   help='comma-separated samples per estimate to draw from (default: 1 in 5 of 9 scenes, else 2-16)')
     a = p.parse_args()
+    spp_choices = [int(v) for v in a.spp.split(',') if v.strip()]
     os.makedirs(a.out, exist_ok=True)
     textures, envmaps = make_assets(os.path.join(a.out, 'assets'), a.seed)
     for i in range(a.first, a.first + a.count):
-        sc = make_scene(a.split, a.seed, i, textures, envmaps, (a.width, a.height), a.frames, a.ref_spp)
+        sc = make_scene(a.split, a.seed, i, textures, envmaps, (a.width, a.height), a.frames, a.ref_spp, spp_choices)
         path = os.path.join(a.out, '%s_%04d.json' % (a.split, i))
         text = json.dumps(sc, indent=1)
         if not os.path.exists(path) or open(path).read() != text:

@@ -20,6 +20,9 @@
 #   val:   8 scenes x 8 frames, 192x144, 512-spp references
 #   test:  8 scenes x 16 frames, 256x144, 1024-spp references (held-out
 #          scenes of the generator; never trained or validated on)
+#   hi:    64 scenes x 4 frames, 192x144, inputs at 16, 32 or 64 spp (the
+#          AOVs at as many), 512-spp targets: real low-noise inputs, not
+#          only the emulated ones (not in the default PARTS; HI_COUNT)
 # Render budget (2-core Zen 4, idle): about 1.3 s a training frame (3200
 # frames: 70 min), 4 s a validation frame, 15 s a test frame (30 min).
 # Needs: bash tools/setup-render.sh once.
@@ -39,6 +42,7 @@ for part in $PARTS; do
         train) args=(--count "${TRAIN_COUNT:-400}" --frames 8 --ref-spp 128 --width 192 --height 144) ;;
         val) args=(--count "${VAL_COUNT:-8}" --frames 8 --ref-spp 512 --width 192 --height 144) ;;
         test) args=(--count "${TEST_COUNT:-8}" --frames 16 --ref-spp 1024 --width 256 --height 144) ;;
+        hi) args=(--count "${HI_COUNT:-64}" --frames 4 --ref-spp 512 --width 192 --height 144 --spp 16,32,64) ;;
         *) echo "unknown part $part" >&2; exit 2 ;;
     esac
     "$PY" "$HERE/gen_scenes.py" --out "$DEST/scenes" --split "$part" --seed "$SEED" "${args[@]}"
