@@ -27,7 +27,9 @@ What a scene draws from (each an independent choice per scene):
   camera     fixed, pan, orbit, dolly, truck, hand-held shake; field of view
              35-75 degrees
   motion     moving objects and moving lights (keyframes)
-  noise      1 spp (half the scenes) or 2, 4, 8, 16 spp per estimate
+  noise      1 spp (half the scenes) or 2, 4, 8, 16 spp per estimate;
+             --spp draws from a given list instead (the `hi` part: 16,
+             32, 64), the AOVs at as many samples, from 16 up
   albedo     the directional reflectance or Mitsuba's raw albedo AOV
              (`"albedo"` of the scene file, read by render.py)
 
