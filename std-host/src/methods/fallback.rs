@@ -214,12 +214,8 @@ pub fn to_input(
     // neighbours of the pixel's own surface and level ([`surface_noise`]);
     // the frame's level above stays the plain estimate's.
     if pair.is_none_or(|p| p.b.len() != 3 * n) {
+        // (Finite: `ly` is, and at most about 89.)
         surface_noise(ctx, &mut raw, ly, albedo, w, h);
-        ctx.pool.planes(vec![&mut raw[..]], RUN, |_, runs| {
-            for v in runs[0].iter_mut() {
-                *v = fin(*v);
-            }
-        });
     }
     // The squared difference in the same colour, summed over the channels.
     let mut err = vec![0.0f32; n];
