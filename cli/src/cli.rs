@@ -443,7 +443,7 @@ struct DenoiseCli {
     /// AFN: without the refinement network
     #[arg(long, help_heading = "Learned methods")]
     no_refine: bool,
-    /// WSKP and AFN: without the fallback to the input (where the output differs from the input
+    /// WSKP, AFN and cross: without the fallback to the input (where the output differs from the input
     /// by more than its noise explains, e.g. a clean frame blurred); the papers' methods as
     /// published
     #[arg(long, help_heading = "Learned methods")]

@@ -518,4 +518,61 @@ mod method {
         let bad = Cross::new(&frames[0], 1, Some(Path::new("/nonexistent/state.safetensors")), None);
         assert!(bad.err().unwrap().to_string().contains("/nonexistent/state.safetensors"));
     }
+
+    /// A dim wall, clean (its two estimates differ by 1 %), around a bright
+    /// noisy strip 8 pixels wide (a light's partly covered edge, 30 % noise), one
+    /// albedo: a network that has had one step leaks the bright side into
+    /// the wall. The blend's plain window beside the edge holds the bright
+    /// side's noise, which hides the wall's error; the fallback after it,
+    /// whose window holds the pixels of the centre's level only, brings the
+    /// wall's columns beside the edge closer to the truth, and is in the
+    /// plan (out of it with `with_fallback(false)`).
+    #[test]
+    fn the_fallback_returns_a_wall_beside_a_noisy_light_to_the_input() {
+        let (w, h) = (48usize, 32usize);
+        let n = w * h;
+        let bright = |i: usize| ((i % n) % w).abs_diff(w / 2) < 4;
+        let truth = |i: usize| if bright(i) { 4.0f32 } else { 0.05 };
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut noisy = |i: usize| {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            // Uniform on [-0.5, 0.5): standard deviation 0.29.
+            let u = (seed >> 40) as f32 / (1u64 << 24) as f32 - 0.5;
+            truth(i) * (1.0 + if bright(i) { 1.0 } else { 0.035 } * u)
+        };
+        let frames: Vec<Frame> = (0..2)
+            .map(|_| {
+                let a: Vec<f32> = (0..3 * n).map(&mut noisy).collect();
+                let b: Vec<f32> = (0..3 * n).map(&mut noisy).collect();
+                let mut f = Frame::from_color("edge.exr", w, h, a).unwrap();
+                f.set(Buffer::ColorB, b).unwrap();
+                f.set(Buffer::Albedo, vec![0.6; 3 * n]).unwrap();
+                f.set(Buffer::Motion, vec![0.0; 2 * n]).unwrap();
+                f
+            })
+            .collect();
+        let settings = Settings { threads: 2, ..Settings::default() };
+        let last = |on: bool| {
+            let mut den = Cross::new(&frames[0], settings.seed, None, None).unwrap().with_fallback(on);
+            let stage = methods::fallback::STAGE_PAIR;
+            assert_eq!(den.plan().built.contains(&stage), on);
+            let mut ctx = methods::context(&settings).unwrap();
+            let mut t = Timings::default();
+            let mut out = Vec::new();
+            for f in &frames {
+                out = den.denoise(f, &mut ctx, &mut t).unwrap();
+            }
+            out
+        };
+        let (with, without) = (last(true), last(false));
+        // Relative squared error over the wall's 5 columns each side of the strip.
+        let wall = |o: &[f32]| -> f64 {
+            (0..3 * n)
+                .filter(|&i| !bright(i) && ((i % n) % w).abs_diff(w / 2) < 9)
+                .map(|i| (f64::from(o[i]) / f64::from(truth(i)) - 1.0).powi(2))
+                .sum()
+        };
+        let (e_with, e_without) = (wall(&with), wall(&without));
+        assert!(e_without > 0.0 && e_with < 0.5 * e_without, "wall error with {e_with}, without {e_without}");
+    }
 }

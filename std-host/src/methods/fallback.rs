@@ -3,7 +3,8 @@
 //! noise explains, the difference is the filter's own error (a blurred
 //! edge, a clean 64-spp frame smoothed, a light leaking into the wall beside
 //! it), and the output moves back towards the input. WSKP and AFN end with
-//! it in every precision (in f32, on their decoded output).
+//! it in every precision (in f32, on their decoded output), `cross` with the
+//! pair's mean as the input.
 //!
 //! With `y` the input (the current frame's colour, `A`), `o` the output
 //! and `v` the input's noise variance, `(o - y)^2 - v` estimates the
@@ -51,8 +52,9 @@
 //! one-estimate rule reads texture as noise: on the generator's `test_0005`
 //! (16 spp, a fine checker on a plastic box behind glass) it estimates 3.5
 //! times the true variance, so the output's blur of the checker stays; the
-//! pair's estimate is within 4 % of it there. `cross` has its own rule with
-//! the pair's variance (`cross::blend_by_error`).
+//! pair's estimate is within 4 % of it there. `cross` ends with its own
+//! rule over a plain window (`cross::blend_by_error`), then this one with
+//! the pair's mean as the input.
 //!
 //! Measured (relMSE, bundled weights, without -> with): on the test corpus
 //! (`tests/tests/corpus.rs`) WSKP-3 on the 64-spp box 0.0042 -> 0.0022 (the

@@ -235,7 +235,7 @@ pub struct Settings {
     pub weights: Option<std::path::PathBuf>,
     /// AFN: with the refinement network.
     pub refine: bool,
-    /// WSKP and AFN: fall back towards the input where the output differs
+    /// WSKP, AFN and cross: fall back towards the input where the output differs
     /// from it by more than its noise explains ([`fallback`]).
     pub fallback: bool,
     /// Temporal accumulation's history clamp, in standard deviations of
@@ -420,7 +420,8 @@ fn create_unchecked(kind: MethodKind, settings: &Settings, first: &Frame) -> Res
             settings.load_state.as_deref(),
             settings.save_state.clone(),
         )?
-        .with_learning_rate(settings.cross_lr)?;
+        .with_learning_rate(settings.cross_lr)?
+        .with_fallback(settings.fallback);
         if settings.cross_spatial_only {
             c = c.spatial_only();
         }

@@ -19,7 +19,16 @@
 //!    against the reprojected previous pilots (0.5 each; where nothing
 //!    reprojects, the current pilots), its gradient through the filter and the
 //!    network, and exactly one Adam step (lr 1e-3) — the network starts from
-//!    random weights at the first frame.
+//!    random weights at the first frame;
+//! 6. two steps back towards the pair's mean where the output is estimated
+//!    worse than it (neither in the paper): [`blend_by_error`] over a plain
+//!    13x13 window, then the learned filters' fallback
+//!    ([`crate::methods::fallback`], its noise from the pair, `--no-fallback`
+//!    turns it off), whose window holds only the pixels of the centre's
+//!    albedo and level. A network that has had one or two steps blurs edges
+//!    and leaks a light into its ceiling; on the foreign 16-spp Cornell box
+//!    the second step moved cross from 37.58 to 38.55 dB, on the 64-spp one
+//!    from 41.71 to 42.74 (docs/quality.md).
 //!
 //! The frame is cut into horizontal strips (a fixed count for the frame
 //! height, not the thread count) run as crops with a 24-row halo (more than
@@ -162,6 +171,8 @@ pub struct Cross {
     seed: u64,
     lr: f32,
     temporal: bool,
+    /// The fallback to the input after the blend ([`crate::methods::fallback`]).
+    fallback: bool,
     /// The last frame's loss.
     pub last_loss: f32,
     /// Frames seen.
@@ -194,6 +205,8 @@ impl Cross {
         let kept = 4 * (39 + 17 + 15) + 1 + input + workspaces;
         let mut l = crate::runtime::memory::Ledger::default();
         l.alloc(kept).alloc(4 * 15).alloc(12);
+        // The fallback to the input (its mean in the window planes).
+        l.temp(crate::methods::fallback::TEMP_BYTES);
         crate::runtime::memory::Footprint { kept, peak: l.peak(), scratch: 0 }
     }
 
@@ -211,6 +224,7 @@ impl Cross {
             plan.skipped.push(("reprojection", "no motion and no position".into()));
         }
         plan.built.extend(["U-Net", "spatiotemporal filter 11x11", "relMSE loss", "one Adam step"]);
+        crate::methods::fallback::plan(&mut plan, true, true);
         for b in [Buffer::Albedo, Buffer::Normal] {
             if !first.has(b) {
                 plan.skipped.push((b.name(), "not in the input: zero planes".into()));
@@ -251,6 +265,7 @@ impl Cross {
             seed,
             lr: LR,
             temporal,
+            fallback: true,
             last_loss: 0.0,
             frames: 0,
         })
@@ -274,6 +289,14 @@ impl Cross {
             self.plan.built.retain(|s| *s != "reprojection");
             self.plan.skipped.push(("reprojection", "--cross-spatial-only".into()));
         }
+        self
+    }
+
+    /// With or without the fallback to the input after the blend to the
+    /// pair's mean (`--no-fallback`).
+    pub fn with_fallback(mut self, on: bool) -> Cross {
+        self.fallback = on;
+        crate::methods::fallback::switch(&mut self.plan, on);
         self
     }
 
@@ -778,6 +801,23 @@ impl Denoiser for Cross {
         let t_blend = Instant::now();
         blend_by_error(&mut result, a, b, (&bufs.out[6 * n..9 * n], &bufs.a, &bufs.b), w, h, &mut bufs.window[..2 * n]);
         t.add("fallback to the input (error estimate)", t_blend.elapsed());
+        // Then the learned filters' fallback, with the pair's mean as the
+        // input and its noise from the pair: its window holds the pixels of
+        // the centre's albedo and level only, in exposure-normalised colour,
+        // which the plain 13x13 window above does not (an edge blurred by a
+        // network that has had one or two steps returns to the input there).
+        if self.fallback {
+            let mean = &mut bufs.window[..3 * n];
+            for ((m, &x), &y) in mean.iter_mut().zip(a).zip(b) {
+                *m = 0.5 * (x + y);
+            }
+            let e = crate::methods::features::exposure(mean, w, h);
+            let pair = crate::io::frame::Pair { b, colour_is_mean: true };
+            let albedo = &bufs.albedo;
+            t.time("fallback", || {
+                crate::methods::fallback::to_input(ctx, &mut result, mean, Some(pair), albedo, w, h, e)
+            })?;
+        }
         if let Some(path) = self.save_state.clone() {
             self.save(&path)?;
         }
