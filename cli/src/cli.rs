@@ -340,7 +340,8 @@ struct SettingsCli {
     ta_clamp: Option<f32>,
     /// Temporal accumulation (ta, WSKP, AFN): let the history go where the frame's 9x9 mean
     /// luminance differs from the accumulated one by more than Z standard errors of the frame's
-    /// mean (all of it by 2Z), so that a moving light does not lag (0: off) [default: 3]
+    /// mean (all of it by 2Z), so that a moving light does not lag (0: off) [default: 3; 2 for
+    /// WSKP and AFN]
     #[arg(long, value_name = "Z", value_parser = firefly)]
     ta_reject: Option<f32>,
     /// A frame with a second estimate B.* of its pixels: 'mean' uses every sample (none, ta, WSKP

@@ -235,10 +235,10 @@ fn to_array<'py>(py: Python<'py>, planes: Vec<f32>, w: usize, h: usize) -> Bound
 /// precision: f32, f16, f16-arith, fixed.
 /// threads: worker threads (default: every core).
 /// options: layers (WSKP: 3 or 6), weights (a file made by `mcdenoise
-/// train`), refine (AFN, default True), fallback (WSKP and AFN, default
-/// True), phi_color, firefly_clamp (à-trous), ta_clamp (ta, WSKP, AFN:
+/// train`), refine (AFN, default True), fallback (WSKP, AFN and cross,
+/// default True), phi_color, firefly_clamp (à-trous), ta_clamp (ta, WSKP, AFN:
 /// the accumulation's history clamp), ta_reject (ta, WSKP, AFN: the history
-/// rejection's threshold, 0 off), pair ("mean", the default: with a second
+/// rejection's threshold, default 3, 2 for WSKP and AFN; 0 off), pair ("mean", the default: with a second
 /// estimate, none, ta, WSKP and AFN filter the mean of the two; "first":
 /// the second is ignored, cross refuses it), seed, cross_lr,
 /// cross_spatial_only, load_state, save_state (cross), isa.
@@ -410,9 +410,9 @@ impl PyDenoiser {
 /// threads:   worker threads (default: every core)
 /// options:   layers (WSKP: 3 or 6, default 6), weights (a file made by
 ///            `mcdenoise train`; default: the bundled weights), refine (AFN,
-///            default True), fallback (WSKP and AFN, default True), phi_color and firefly_clamp (à-trous),
+///            default True), fallback (WSKP, AFN and cross, default True), phi_color and firefly_clamp (à-trous),
 ///            ta_clamp (ta, WSKP, AFN: the history clamp), ta_reject (ta,
-///            WSKP, AFN: the history rejection, 0 off), pair ("mean" or
+///            WSKP, AFN: the history rejection, default 3, 2 for WSKP and AFN; 0 off), pair ("mean" or
 ///            "first": what a second estimate is used for), seed,
 ///            cross_lr and cross_spatial_only (cross), isa (scalar, avx2,
 ///            avx512)

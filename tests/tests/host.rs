@@ -276,3 +276,44 @@ fn fixed_point_atrous_filters_a_frame_with_a_firefly() {
         assert!(between > 40.0, "pair {pair}: fixed point is {between:.2} dB from the f32 output");
     }
 }
+
+/// WSKP and AFN read an accumulation whose history rejection defaults to
+/// `LEARNED_TA_REJECT` (2 standard errors), not `ta`'s `TA_REJECT` (3):
+/// their output with no `ta_reject` given equals the one with 2 given, bit
+/// for bit, and differs from the one with 3, on noisy frames whose level
+/// steps up (a light that moved) by enough to let the history go at 2.
+#[test]
+fn the_learned_methods_reject_history_at_their_own_threshold() {
+    let (w, h) = (24, 16);
+    let n = w * h;
+    let mut seed = 0x2545_f491_4f6c_dd1du64;
+    let mut frame = |level: f32| {
+        let c: Vec<f32> = (0..3 * n)
+            .map(|_| {
+                seed ^= seed << 13;
+                seed ^= seed >> 7;
+                seed ^= seed << 17;
+                level * (0.5 + (seed >> 40) as f32 / (1u64 << 24) as f32)
+            })
+            .collect();
+        let mut f = static_frame(w, h, 0.0, 0.0);
+        f.set(Buffer::Color, c).unwrap();
+        f.set(Buffer::Albedo, vec![0.5; 3 * n]).unwrap();
+        f.set(Buffer::Depth, vec![1.0; n]).unwrap();
+        f
+    };
+    let frames = [frame(0.2), frame(0.2), frame(0.2), frame(0.3)];
+    const { assert!(methods::LEARNED_TA_REJECT < methods::TA_REJECT) };
+    for (kind, layers) in [(MethodKind::Wskp, 3), (MethodKind::Afn, 6)] {
+        let run = |z: Option<f32>| {
+            let settings = Settings { threads: 2, layers, ta_reject: z, ..Settings::default() };
+            let mut den = methods::create(kind, &settings, &frames[0]).unwrap();
+            let mut ctx = methods::context(&settings).unwrap();
+            let mut t = Timings::default();
+            frames.iter().map(|f| den.denoise(f, &mut ctx, &mut t).unwrap()).last().unwrap()
+        };
+        let (default, two, three) = (run(None), run(Some(methods::LEARNED_TA_REJECT)), run(Some(methods::TA_REJECT)));
+        assert!(default.iter().zip(&two).all(|(a, b)| a.to_bits() == b.to_bits()), "{kind:?}: default is not 2");
+        assert!(default != three, "{kind:?}: the step must let the history go at 2 and not as much at 3");
+    }
+}

@@ -29,8 +29,8 @@ pub use atrous::Atrous;
 
 pub use basic::{
     check_clamp, check_reject, clamp_plan, reject_plan, reject_stale, scene_scale, ta_clamp_for, ta_clamp_of,
-    Passthrough, TemporalAccumulation, CLAMP_STAGE, POSITION_TOLERANCE, REJECT_STAGE, TA_CLAMP, TA_CLAMP_RADIUS,
-    TA_REJECT,
+    Passthrough, TemporalAccumulation, CLAMP_STAGE, LEARNED_TA_REJECT, POSITION_TOLERANCE, REJECT_STAGE, TA_CLAMP,
+    TA_CLAMP_RADIUS, TA_REJECT,
 };
 
 /// The methods, by command-line name.
@@ -243,7 +243,8 @@ pub struct Settings {
     /// [`TA_CLAMP`], the learned methods' [`ta_clamp_for`] their weights).
     pub ta_clamp: Option<f32>,
     /// Temporal accumulation's history rejection, in standard errors of the
-    /// frame's 9x9 mean ([`reject_stale`]; 0: off; `None`: [`TA_REJECT`]).
+    /// frame's 9x9 mean ([`reject_stale`]; 0: off; `None`: [`TA_REJECT`],
+    /// WSKP's and AFN's [`LEARNED_TA_REJECT`]).
     pub ta_reject: Option<f32>,
     /// Online methods: the seed of the initial weights.
     pub seed: u64,

@@ -609,7 +609,7 @@ impl<P: HostPrecision> Afn<P> {
     /// With parameters in hand (kernel predictor, refinement).
     pub fn from_params(first: &Frame, params: (Vec<f32>, Vec<f32>), refine: bool, variant: Variant) -> Result<Self> {
         check_inputs(first)?;
-        let ta = TemporalAccumulation::<P>::new(first, false)?;
+        let ta = TemporalAccumulation::<P>::new(first, false)?.with_reject(crate::methods::basic::LEARNED_TA_REJECT)?;
         let mut plan = ta.plan().clone();
         match variant {
             Variant::Fusion => plan.built.extend([

@@ -21,7 +21,7 @@
 //!    network, and exactly one Adam step (lr 1e-3) — the network starts from
 //!    random weights at the first frame;
 //! 6. two steps back towards the pair's mean where the output is estimated
-//!    worse than it (neither in the paper): [`blend_by_error`] over a plain
+//!    worse than it (neither in the paper): `blend_by_error` over a plain
 //!    13x13 window, then the learned filters' fallback
 //!    ([`crate::methods::fallback`], its noise from the pair, `--no-fallback`
 //!    turns it off), whose window holds only the pixels of the centre's

@@ -472,7 +472,7 @@ impl<P: HostPrecision> Wskp<P> {
     /// For a sequence starting with `first`, with parameters in hand.
     pub fn from_params(first: &Frame, net: Net, params: Vec<f32>, layers: usize, sizes: Sizes) -> Result<Self> {
         check_inputs(first)?;
-        let ta = TemporalAccumulation::<P>::new(first, false)?;
+        let ta = TemporalAccumulation::<P>::new(first, false)?.with_reject(crate::methods::basic::LEARNED_TA_REJECT)?;
         let mut plan = ta.plan().clone();
         plan.built.push(if layers == 6 { "ImportanceNet (6 layers)" } else { "ImportanceNet (3 layers)" });
         plan.built.push(match sizes {
