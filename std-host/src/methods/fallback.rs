@@ -38,7 +38,13 @@
 //! accumulation lags) the blend brought the 1-spp noise back in blotches:
 //! better PSNR and relMSE on the foreign moving-light sequence (+1.7 dB),
 //! a worse picture. The frame's noise level, the median over the pixels of
-//! their window's mean noise variance, separates the sample counts.
+//! their window's mean noise variance, separates the sample counts. A
+//! frame's median can be clean while a large part of it is 1-spp-noisy
+//! (open sky or a sunlit floor beside walls lit through openings: the
+//! generator's `test_0003`, 22 dB with the fallback against 37 without), so
+//! each pixel's fade is the later of the frame's and its region's, the
+//! median level over a 32-pixel tile ([`region_fade`], on a band 6 times
+//! the frame's).
 //!
 //! The input's noise: where the frame has a second, independent estimate
 //! `B` of the same pixels (the pair `cross` and the à-trous methods read),
@@ -87,6 +93,12 @@ pub const NOISY: f32 = 0.003;
 pub const FADE_FROM: f32 = 0.002;
 /// The frame noise level where the fallback has faded out.
 pub const FADE_TO: f32 = 0.005;
+/// From this region noise level on (the median of the window levels over a
+/// [`TILE`]-square region), the fallback fades out there too
+/// ([`region_fade`]).
+pub const REGION_FADE_FROM: f32 = 6.0 * FADE_FROM;
+/// The region noise level where the fallback has faded out there.
+pub const REGION_FADE_TO: f32 = 6.0 * FADE_TO;
 
 /// Two albedos count as the same surface's within this fraction of the
 /// larger (per channel) plus [`ALBEDO_FLOOR`].
@@ -186,30 +198,19 @@ pub fn to_input(
             *v = fin(*v);
         }
     });
-    // The frame's noise level: the median over the pixels of the 7x7
-    // window mean of the estimate (per channel). A 1-spp frame ends here.
-    let level = {
-        let mut m = raw.clone();
-        crate::methods::features::box_sum(&mut m, w, h, RADIUS);
-        let span = |p: usize, len: usize| crate::methods::features::window_span(p, len, RADIUS);
-        // Runs of whole rows.
-        ctx.pool.planes(vec![&mut m[..]], w * 16, |start, runs| {
-            for (r, row) in runs[0].chunks_mut(w).enumerate() {
-                let sy = span(start / w + r, h);
-                for (x, v) in row.iter_mut().enumerate() {
-                    *v /= span(x, w) * sy;
-                }
-            }
-        });
-        *m.select_nth_unstable_by(n / 2, |a, b| a.total_cmp(b)).1
-    };
+    // The noise levels: the 7x7 window mean of the estimate (per channel)
+    // at every pixel; the frame's is their median, a region's the median
+    // over its tile ([`region_levels`]). A 1-spp frame ends here.
+    let mut m = raw.clone();
+    window_means(ctx, &mut m, w, h);
+    let mut sorted = m.clone();
+    let level = *sorted.select_nth_unstable_by(n / 2, |a, b| a.total_cmp(b)).1;
     // The fade asks how reliable the noise estimate is, which depends on the
     // samples of each estimate it comes from: with the pair's mean as the
     // colour it comes from two estimates as noisy as one at twice the mean's
     // level (a 1-spp pair stays a 1-spp frame here).
     let per_estimate = if pair.is_some_and(|p| p.colour_is_mean && p.b.len() == 3 * n) { 2.0 } else { 1.0 };
-    let s = fade(per_estimate * level);
-    if s >= 1.0 {
+    if fade(per_estimate * level) >= 1.0 {
         return Ok(());
     }
     // One estimate: the window's noise from the residuals against the
@@ -219,6 +220,22 @@ pub fn to_input(
         // (Finite: `ly` is, and at most about 89.)
         surface_noise(ctx, &mut raw, ly, albedo, w, h);
     }
+    // Each pixel's fade (into `m`), the later of the frame's and its
+    // region's ([`region_fade`]): a frame half open sky or clean floor and
+    // half 1-spp-noisy walls has a clean median, and its walls must still
+    // count as 1 spp.
+    region_levels(&mut m, &mut sorted, w, h);
+    drop(sorted);
+    let frame = fade(per_estimate * level);
+    let mut any = false;
+    for v in m.iter_mut() {
+        *v = frame.max(region_fade(per_estimate * *v));
+        any |= *v < 1.0;
+    }
+    if !any {
+        return Ok(());
+    }
+    let fades = &m;
     // The squared difference in the same colour, summed over the channels.
     let mut err = vec![0.0f32; n];
     {
@@ -264,7 +281,7 @@ pub fn to_input(
         for (c, run) in runs.iter_mut().enumerate() {
             for (j, ov) in run.iter_mut().enumerate() {
                 let i = start + j;
-                let k = ks[i] + s * (1.0 - ks[i]);
+                let k = ks[i] + fades[i] * (1.0 - ks[i]);
                 let yv = y[c * n + i];
                 let out = yv + k * (*ov - yv);
                 if out.is_finite() {
@@ -274,6 +291,71 @@ pub fn to_input(
         }
     });
     Ok(())
+}
+
+/// Replaces each value of `m` (`w` x `h`) by the mean over its 7x7 window
+/// (the pixels inside the frame).
+fn window_means(ctx: &mut Ctx, m: &mut [f32], w: usize, h: usize) {
+    crate::methods::features::box_sum(m, w, h, RADIUS);
+    let span = |p: usize, len: usize| crate::methods::features::window_span(p, len, RADIUS);
+    // Runs of whole rows.
+    ctx.pool.planes(vec![m], w * 16, |start, runs| {
+        for (r, row) in runs[0].chunks_mut(w).enumerate() {
+            let sy = span(start / w + r, h);
+            for (x, v) in row.iter_mut().enumerate() {
+                *v /= span(x, w) * sy;
+            }
+        }
+    });
+}
+
+/// Side of the square tiles whose median window level is a region's noise
+/// level (see [`region_fade`]).
+pub const TILE: usize = 32;
+
+/// Replaces each pixel's window level in `m` (`w` x `h`) by its region's:
+/// the median over each tile (the frame split evenly into tiles of at most
+/// [`TILE`] pixels a side), taken at the tile's centre and interpolated
+/// bilinearly between the centres (held beyond the outer ones). A median,
+/// so that the edges a 64-spp frame's one-estimate noise reads as noise do
+/// not make its region noisy. `scratch` holds at least `TILE * TILE`
+/// values; its contents are lost.
+fn region_levels(m: &mut [f32], scratch: &mut [f32], w: usize, h: usize) {
+    let (tx, ty) = (w.div_ceil(TILE).max(1), h.div_ceil(TILE).max(1));
+    let bounds = |t: usize, count: usize, len: usize| (t * len / count, (t + 1) * len / count);
+    let mut grid = vec![0.0f32; tx * ty];
+    for j in 0..ty {
+        let (y0, y1) = bounds(j, ty, h);
+        for i in 0..tx {
+            let (x0, x1) = bounds(i, tx, w);
+            let mut k = 0;
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    scratch[k] = m[y * w + x];
+                    k += 1;
+                }
+            }
+            grid[j * tx + i] =
+                if k == 0 { 0.0 } else { *scratch[..k].select_nth_unstable_by(k / 2, |a, b| a.total_cmp(b)).1 };
+        }
+    }
+    // A pixel's position in tile-centre units along one axis: the lower
+    // centre's index and the weight of the next.
+    let at = |p: usize, count: usize, len: usize| {
+        let u = ((p as f32 + 0.5) * count as f32 / len as f32 - 0.5).clamp(0.0, (count - 1) as f32);
+        let t0 = (u as usize).min(count - 1);
+        (t0, (t0 + 1).min(count - 1), u - t0 as f32)
+    };
+    for y in 0..h {
+        let (j0, j1, fy) = at(y, ty, h);
+        for x in 0..w {
+            let (i0, i1, fx) = at(x, tx, w);
+            let g = |j: usize, i: usize| grid[j * tx + i];
+            let top = g(j0, i0) + fx * (g(j0, i1) - g(j0, i0));
+            let bottom = g(j1, i0) + fx * (g(j1, i1) - g(j1, i0));
+            m[y * w + x] = top + fy * (bottom - top);
+        }
+    }
 }
 
 /// Whether pixel `q` counts as pixel `i`'s surface at its level: the same
@@ -371,6 +453,23 @@ pub fn fade(level: f32) -> f32 {
     ((level - FADE_FROM) / (FADE_TO - FADE_FROM)).clamp(0.0, 1.0)
 }
 
+/// How far the fallback is faded out in a region whose noise level (the
+/// median window level over its tile, interpolated between the tiles'
+/// centres) is `level`: [`fade`]'s ramp, from
+/// [`REGION_FADE_FROM`] to [`REGION_FADE_TO`]. A region's level does not
+/// tell the sample count as well as a frame's: a dark 16-spp room's dim
+/// corners reach 0.03-0.1 (where the fallback still restores thin bright
+/// edges), and the 1-spp walls of a frame whose median is open sky reach
+/// 0.04-0.26. Chosen on the generator's held-out scenes (docs/quality.md,
+/// "The fallback's fade per region"): at 1x the frame's band, a 16-spp
+/// room lost up to 1.6 dB; at 6x the 16- to 64-spp scenes lose 0.01 to
+/// 0.05 dB on the mean (1.15 on the dark `hi_0061` with one estimate, 0.11
+/// with the pair) and `test_0003` gains 13.5 to 14.1 dB.
+#[inline]
+pub fn region_fade(level: f32) -> f32 {
+    ((level - REGION_FADE_FROM) / (REGION_FADE_TO - REGION_FADE_FROM)).clamp(0.0, 1.0)
+}
+
 /// The margin at a window's mean noise variance `vbar` (per channel, in
 /// exposure-normalised `log1p` colour): from 1 on a clean input to
 /// [`MARGIN`] from [`NOISY`] on.
@@ -427,6 +526,77 @@ mod tests {
         let mut o = vec![mean; 3 * n];
         to_input(&mut ctx, &mut o, &y, None, &vec![0.5; 3 * n], w, h, 1.0).unwrap();
         assert!(o.iter().all(|&v| (v - mean).abs() < 1e-6), "noise removed is not put back");
+    }
+
+    /// A frame whose larger part is clean (open sky, a lit floor) and whose
+    /// left part is 1-spp-noisy has a clean median level, and the fallback
+    /// must still stay off on the noisy part: there its noise estimate is
+    /// the unreliable one the fade guards against (the generator's
+    /// `test_0003`: 22 dB with the fallback, 37 without). An output off by
+    /// far more than the noise stays on the noisy part and returns to the
+    /// input on the clean part.
+    #[test]
+    fn a_noisy_region_of_a_clean_frame_is_faded_out() {
+        let mut ctx = crate::methods::context(&crate::methods::Settings::default()).unwrap();
+        let (w, h) = (4 * TILE, 2 * TILE);
+        let n = w * h;
+        let noisy_to = 3 * TILE / 2;
+        let mut next = crate::methods::test_noise::xorshift32(4242);
+        let mut estimate = || {
+            (0..3 * n)
+                .map(|i| {
+                    let u = (next() >> 8) as f32 / (1u32 << 24) as f32 - 0.5;
+                    // Uniform in 1 +- 0.9 on the left: about 0.08 in log1p,
+                    // past REGION_FADE_TO; exactly 1 elsewhere.
+                    if (i % n) % w < noisy_to {
+                        1.0 + 1.8 * u
+                    } else {
+                        1.0
+                    }
+                })
+                .collect::<Vec<f32>>()
+        };
+        let (a, b) = (estimate(), estimate());
+        let noisy: f64 = (0..3 * n)
+            .filter(|i| (i % n) % w < noisy_to)
+            .map(|i| 0.5 * ((a[i] as f64).ln_1p() - (b[i] as f64).ln_1p()).powi(2))
+            .sum::<f64>()
+            / (3 * h * noisy_to) as f64;
+        assert!(noisy > 2.0 * REGION_FADE_TO as f64 && noisy_to < w / 2, "the test's premise: {noisy}");
+        let wrong = vec![2.0f32; 3 * n];
+        let mut o = wrong.clone();
+        to_input(&mut ctx, &mut o, &a, Some(Pair { b: &b, colour_is_mean: false }), &vec![0.5; 3 * n], w, h, 1.0)
+            .unwrap();
+        for c in 0..3 {
+            for y in 0..h {
+                for x in 0..TILE / 2 {
+                    assert_eq!(o[c * n + y * w + x], 2.0, "the noisy part is left alone at ({x}, {y})");
+                }
+                for x in w - TILE / 2..w {
+                    assert!((o[c * n + y * w + x] - 1.0).abs() < 1e-5, "the clean part returns at ({x}, {y})");
+                }
+            }
+        }
+    }
+
+    /// The region levels: the tiles' medians at their centres, linear
+    /// between them, held beyond the outer centres.
+    #[test]
+    fn region_levels_interpolate_the_tiles_medians() {
+        let (w, h) = (4 * TILE, TILE);
+        // Tile i holds i + 1 on most pixels and a few outliers of 100.
+        let mut m: Vec<f32> = (0..w * h)
+            .map(|p| if p % 7 == 0 && (p / w) % 3 == 0 { 100.0 } else { ((p % w) / TILE + 1) as f32 })
+            .collect();
+        let mut scratch = vec![0.0f32; w * h];
+        region_levels(&mut m, &mut scratch, w, h);
+        for y in 0..h {
+            for x in 0..w {
+                let u = ((x as f64 + 0.5) / TILE as f64 - 0.5).clamp(0.0, 3.0);
+                let want = u + 1.0;
+                assert!((m[y * w + x] as f64 - want).abs() < 1e-5, "({x}, {y}): {} against {want}", m[y * w + x]);
+            }
+        }
     }
 
     /// The window holds only inputs within RANGE of the centre's: a dark
