@@ -44,7 +44,9 @@
 //! generator's `test_0003`, 22 dB with the fallback against 37 without), so
 //! each pixel's fade is the later of the frame's and its region's, the
 //! median level over a 32-pixel tile ([`region_fade`], on a band 6 times
-//! the frame's).
+//! the frame's), on frames whose squared coefficient of variation says few
+//! samples a pixel ([`REGION_CV2`]; on a 16-spp frame a region that reads
+//! as noisy is texture the one-estimate noise takes for noise).
 //!
 //! The input's noise: where the frame has a second, independent estimate
 //! `B` of the same pixels (the pair `cross` and the à-trous methods read),
@@ -99,6 +101,13 @@ pub const FADE_TO: f32 = 0.005;
 pub const REGION_FADE_FROM: f32 = 6.0 * FADE_FROM;
 /// The region noise level where the fallback has faded out there.
 pub const REGION_FADE_TO: f32 = 6.0 * FADE_TO;
+/// The frame's squared coefficient of variation (the median over the
+/// pixels of their window's noise variance over their window's squared
+/// mean, linear) from which the region fade applies: below it the frame has
+/// many samples a pixel, and a region that reads as noisy is texture the
+/// one-estimate noise takes for noise (the generator's 16-spp `test_0005`,
+/// a fine checker behind glass, 0.028; its 1-spp `test_0003` 0.31).
+pub const REGION_CV2: f32 = 0.05;
 
 /// Two albedos count as the same surface's within this fraction of the
 /// larger (per channel) plus [`ALBEDO_FLOOR`].
@@ -224,12 +233,28 @@ pub fn to_input(
     // region's ([`region_fade`]): a frame half open sky or clean floor and
     // half 1-spp-noisy walls has a clean median, and its walls must still
     // count as 1 spp.
+    // The frame's squared coefficient of variation (into `sorted`, in
+    // place): the window's `log1p` variance over the slope of `log1p` at the
+    // window's mean level, squared, over that level squared.
+    {
+        let mean_ly = &mut sorted;
+        for (i, v) in mean_ly.iter_mut().enumerate() {
+            *v = (ly[i] + ly[n + i] + ly[2 * n + i]) / 3.0;
+        }
+        window_means(ctx, mean_ly, w, h);
+        for (v, &level) in mean_ly.iter_mut().zip(&m) {
+            let x = v.exp_m1().max(1e-3);
+            *v = level * ((1.0 + x) / x).powi(2);
+        }
+    }
+    let cv2 = *sorted.select_nth_unstable_by(n / 2, |a, b| a.total_cmp(b)).1;
+    let regions = cv2 >= REGION_CV2;
     region_levels(&mut m, &mut sorted, w, h);
     drop(sorted);
     let frame = fade(per_estimate * level);
     let mut any = false;
     for v in m.iter_mut() {
-        *v = frame.max(region_fade(per_estimate * *v));
+        *v = if regions { frame.max(region_fade(per_estimate * *v)) } else { frame };
         any |= *v < 1.0;
     }
     if !any {
@@ -528,41 +553,50 @@ mod tests {
         assert!(o.iter().all(|&v| (v - mean).abs() < 1e-6), "noise removed is not put back");
     }
 
-    /// A frame whose larger part is clean (open sky, a lit floor) and whose
-    /// left part is 1-spp-noisy has a clean median level, and the fallback
-    /// must still stay off on the noisy part: there its noise estimate is
-    /// the unreliable one the fade guards against (the generator's
-    /// `test_0003`: 22 dB with the fallback, 37 without). An output off by
-    /// far more than the noise stays on the noisy part and returns to the
-    /// input on the clean part.
+    /// A frame of `w` x `h` whose left `noisy_to` columns are 1-spp-noisy
+    /// (uniform in 1 +- 0.9, about 0.08 in log1p) and whose other pixels are
+    /// `rest(u)` for a uniform `u` in -0.5..0.5: two independent estimates.
+    fn half_noisy(w: usize, h: usize, noisy_to: usize, rest: impl Fn(f32) -> f32) -> (Vec<f32>, Vec<f32>) {
+        let n = w * h;
+        let mut next = crate::methods::test_noise::xorshift32(4242);
+        let mut estimate = || {
+            (0..3 * n)
+                .map(|i| {
+                    let u = (next() >> 8) as f32 / (1u32 << 24) as f32 - 0.5;
+                    if (i % n) % w < noisy_to {
+                        1.0 + 1.8 * u
+                    } else {
+                        rest(u)
+                    }
+                })
+                .collect::<Vec<f32>>()
+        };
+        (estimate(), estimate())
+    }
+
+    /// A frame whose larger part is dim and clean in `log1p` (a floor in
+    /// shade, at 1 spp) and whose left part is 1-spp-noisy has a clean
+    /// median level, and the fallback must still stay off on the noisy
+    /// part: there its noise estimate is the unreliable one the fade guards
+    /// against (the generator's `test_0003`: 22 dB with the fallback, 37
+    /// without). An output off by far more than the noise stays on the noisy
+    /// part and returns to the input on the clean part.
     #[test]
     fn a_noisy_region_of_a_clean_frame_is_faded_out() {
         let mut ctx = crate::methods::context(&crate::methods::Settings::default()).unwrap();
         let (w, h) = (4 * TILE, 2 * TILE);
         let n = w * h;
         let noisy_to = 3 * TILE / 2;
-        let mut next = crate::methods::test_noise::xorshift32(4242);
-        let mut estimate = || {
-            (0..3 * n)
-                .map(|i| {
-                    let u = (next() >> 8) as f32 / (1u32 << 24) as f32 - 0.5;
-                    // Uniform in 1 +- 0.9 on the left: about 0.08 in log1p,
-                    // past REGION_FADE_TO; exactly 1 elsewhere.
-                    if (i % n) % w < noisy_to {
-                        1.0 + 1.8 * u
-                    } else {
-                        1.0
-                    }
-                })
-                .collect::<Vec<f32>>()
-        };
-        let (a, b) = (estimate(), estimate());
+        // The rest: 0.02 +- 50 %, a squared coefficient of variation of
+        // 1/12 (a few samples a pixel), about 3e-5 in log1p.
+        let (a, b) = half_noisy(w, h, noisy_to, |u| 0.02 * (1.0 + u));
         let noisy: f64 = (0..3 * n)
             .filter(|i| (i % n) % w < noisy_to)
             .map(|i| 0.5 * ((a[i] as f64).ln_1p() - (b[i] as f64).ln_1p()).powi(2))
             .sum::<f64>()
             / (3 * h * noisy_to) as f64;
         assert!(noisy > 2.0 * REGION_FADE_TO as f64 && noisy_to < w / 2, "the test's premise: {noisy}");
+        const { assert!(1.0 / 12.0 > 1.5 * REGION_CV2, "the test's premise") };
         let wrong = vec![2.0f32; 3 * n];
         let mut o = wrong.clone();
         to_input(&mut ctx, &mut o, &a, Some(Pair { b: &b, colour_is_mean: false }), &vec![0.5; 3 * n], w, h, 1.0)
@@ -573,10 +607,34 @@ mod tests {
                     assert_eq!(o[c * n + y * w + x], 2.0, "the noisy part is left alone at ({x}, {y})");
                 }
                 for x in w - TILE / 2..w {
-                    assert!((o[c * n + y * w + x] - 1.0).abs() < 1e-5, "the clean part returns at ({x}, {y})");
+                    let i = c * n + y * w + x;
+                    assert!((o[i] - a[i]).abs() < 0.01, "the clean part returns at ({x}, {y}): {}", o[i]);
                 }
             }
         }
+    }
+
+    /// The same frame with its larger part exactly constant (many samples a
+    /// pixel: the frame's squared coefficient of variation is 0) reads its
+    /// noisy-looking part as texture, as on the generator's 16-spp
+    /// `test_0005` (a fine checker behind glass, where the region fade cost
+    /// WSKP-3 2 dB): the region fade does not apply and the fallback moves
+    /// the output there.
+    #[test]
+    fn a_frame_of_many_samples_keeps_the_fallback_on_its_textured_region() {
+        let mut ctx = crate::methods::context(&crate::methods::Settings::default()).unwrap();
+        let (w, h) = (4 * TILE, 2 * TILE);
+        let n = w * h;
+        let (a, b) = half_noisy(w, h, 3 * TILE / 2, |_| 1.0);
+        let wrong = vec![2.0f32; 3 * n];
+        let mut o = wrong.clone();
+        to_input(&mut ctx, &mut o, &a, Some(Pair { b: &b, colour_is_mean: false }), &vec![0.5; 3 * n], w, h, 1.0)
+            .unwrap();
+        let moved = (0..3)
+            .flat_map(|c| (0..h).flat_map(move |y| (0..TILE / 2).map(move |x| c * n + y * w + x)))
+            .filter(|&i| o[i] < 2.0)
+            .count();
+        assert!(moved > 3 * h * TILE / 4, "{moved} of {} pixels of the textured part moved", 3 * h * TILE / 2);
     }
 
     /// The region levels: the tiles' medians at their centres, linear
