@@ -44,9 +44,12 @@
 //! generator's `test_0003`, 22 dB with the fallback against 37 without), so
 //! each pixel's fade is the later of the frame's and its region's, the
 //! median level over a 32-pixel tile ([`region_fade`], on a band 6 times
-//! the frame's), on frames whose squared coefficient of variation says few
-//! samples a pixel ([`REGION_CV2`]; on a 16-spp frame a region that reads
-//! as noisy is texture the one-estimate noise takes for noise).
+//! the frame's). With one estimate, only on frames whose squared
+//! coefficient of variation says few samples a pixel ([`REGION_CV2`]): on a
+//! 16-spp frame a region that reads as noisy is texture the one-estimate
+//! noise takes for noise (the generator's `test_0005`, where the region fade
+//! cost WSKP-3 2 dB); the pair's noise does not, and on the generator's
+//! 8-spp `val_0022` the region fade gains 0.2 to 0.3 dB with it.
 //!
 //! The input's noise: where the frame has a second, independent estimate
 //! `B` of the same pixels (the pair `cross` and the à-trous methods read),
@@ -101,12 +104,13 @@ pub const FADE_TO: f32 = 0.005;
 pub const REGION_FADE_FROM: f32 = 6.0 * FADE_FROM;
 /// The region noise level where the fallback has faded out there.
 pub const REGION_FADE_TO: f32 = 6.0 * FADE_TO;
-/// The frame's squared coefficient of variation (the median over the
-/// pixels of their window's noise variance over their window's squared
-/// mean, linear) from which the region fade applies: below it the frame has
-/// many samples a pixel, and a region that reads as noisy is texture the
-/// one-estimate noise takes for noise (the generator's 16-spp `test_0005`,
-/// a fine checker behind glass, 0.028; its 1-spp `test_0003` 0.31).
+/// With one estimate, the frame's squared coefficient of variation (the
+/// median over the pixels of their window's noise variance over their
+/// window's squared mean, linear) from which the region fade applies:
+/// below it the frame has many samples a pixel, and a region that reads as
+/// noisy is texture the one-estimate noise takes for noise (the generator's
+/// 16-spp `test_0005`, a fine checker behind glass, 0.028; its 1-spp
+/// `test_0003` 0.31). With the pair the region fade always applies.
 pub const REGION_CV2: f32 = 0.05;
 
 /// Two albedos count as the same surface's within this fraction of the
@@ -219,13 +223,15 @@ pub fn to_input(
     // colour it comes from two estimates as noisy as one at twice the mean's
     // level (a 1-spp pair stays a 1-spp frame here).
     let per_estimate = if pair.is_some_and(|p| p.colour_is_mean && p.b.len() == 3 * n) { 2.0 } else { 1.0 };
-    if fade(per_estimate * level) >= 1.0 {
+    let frame = fade(per_estimate * level);
+    if frame >= 1.0 {
         return Ok(());
     }
     // One estimate: the window's noise from the residuals against the
     // neighbours of the pixel's own surface and level ([`surface_noise`]);
     // the frame's level above stays the plain estimate's.
-    if pair.is_none_or(|p| p.b.len() != 3 * n) {
+    let paired = pair.is_some_and(|p| p.b.len() == 3 * n);
+    if !paired {
         // (Finite: `ly` is, and at most about 89.)
         surface_noise(ctx, &mut raw, ly, albedo, w, h);
     }
@@ -233,10 +239,12 @@ pub fn to_input(
     // region's ([`region_fade`]): a frame half open sky or clean floor and
     // half 1-spp-noisy walls has a clean median, and its walls must still
     // count as 1 spp.
-    // The frame's squared coefficient of variation (into `sorted`, in
-    // place): the window's `log1p` variance over the slope of `log1p` at the
-    // window's mean level, squared, over that level squared.
-    {
+    // With one estimate, the region fade applies only if the frame's squared
+    // coefficient of variation ([`REGION_CV2`]) says few samples a pixel
+    // (computed into `sorted`, in place: the window's `log1p` variance over
+    // the slope of `log1p` at the window's mean level, squared, over that
+    // level squared); the pair's noise does not take texture for noise.
+    let regions = paired || {
         let mean_ly = &mut sorted;
         for (i, v) in mean_ly.iter_mut().enumerate() {
             *v = (ly[i] + ly[n + i] + ly[2 * n + i]) / 3.0;
@@ -246,12 +254,10 @@ pub fn to_input(
             let x = v.exp_m1().max(1e-3);
             *v = level * ((1.0 + x) / x).powi(2);
         }
-    }
-    let cv2 = *sorted.select_nth_unstable_by(n / 2, |a, b| a.total_cmp(b)).1;
-    let regions = cv2 >= REGION_CV2;
+        *sorted.select_nth_unstable_by(n / 2, |a, b| a.total_cmp(b)).1 >= REGION_CV2
+    };
     region_levels(&mut m, &mut sorted, w, h);
     drop(sorted);
-    let frame = fade(per_estimate * level);
     let mut any = false;
     for v in m.iter_mut() {
         *v = if regions { frame.max(region_fade(per_estimate * *v)) } else { frame };
@@ -580,7 +586,8 @@ mod tests {
     /// part: there its noise estimate is the unreliable one the fade guards
     /// against (the generator's `test_0003`: 22 dB with the fallback, 37
     /// without). An output off by far more than the noise stays on the noisy
-    /// part and returns to the input on the clean part.
+    /// part and returns to the input on the clean part, with the pair's
+    /// noise and with one estimate's.
     #[test]
     fn a_noisy_region_of_a_clean_frame_is_faded_out() {
         let mut ctx = crate::methods::context(&crate::methods::Settings::default()).unwrap();
@@ -597,44 +604,51 @@ mod tests {
             / (3 * h * noisy_to) as f64;
         assert!(noisy > 2.0 * REGION_FADE_TO as f64 && noisy_to < w / 2, "the test's premise: {noisy}");
         const { assert!(1.0 / 12.0 > 1.5 * REGION_CV2, "the test's premise") };
-        let wrong = vec![2.0f32; 3 * n];
-        let mut o = wrong.clone();
-        to_input(&mut ctx, &mut o, &a, Some(Pair { b: &b, colour_is_mean: false }), &vec![0.5; 3 * n], w, h, 1.0)
-            .unwrap();
-        for c in 0..3 {
-            for y in 0..h {
-                for x in 0..TILE / 2 {
-                    assert_eq!(o[c * n + y * w + x], 2.0, "the noisy part is left alone at ({x}, {y})");
-                }
-                for x in w - TILE / 2..w {
-                    let i = c * n + y * w + x;
-                    assert!((o[i] - a[i]).abs() < 0.01, "the clean part returns at ({x}, {y}): {}", o[i]);
+        for pair in [Some(Pair { b: &b, colour_is_mean: false }), None] {
+            let mut o = vec![2.0f32; 3 * n];
+            to_input(&mut ctx, &mut o, &a, pair, &vec![0.5; 3 * n], w, h, 1.0).unwrap();
+            let with = if pair.is_some() { "the pair" } else { "one estimate" };
+            for c in 0..3 {
+                for y in 0..h {
+                    for x in 0..TILE / 2 {
+                        assert_eq!(o[c * n + y * w + x], 2.0, "{with}: the noisy part is left alone at ({x}, {y})");
+                    }
+                    for x in w - TILE / 2..w {
+                        let i = c * n + y * w + x;
+                        assert!((o[i] - a[i]).abs() < 0.01, "{with}: the clean part returns at ({x}, {y}): {}", o[i]);
+                    }
                 }
             }
         }
     }
 
     /// The same frame with its larger part exactly constant (many samples a
-    /// pixel: the frame's squared coefficient of variation is 0) reads its
-    /// noisy-looking part as texture, as on the generator's 16-spp
-    /// `test_0005` (a fine checker behind glass, where the region fade cost
-    /// WSKP-3 2 dB): the region fade does not apply and the fallback moves
-    /// the output there.
+    /// pixel: the frame's squared coefficient of variation is 0): one
+    /// estimate's noise reads the noisy-looking part as texture, as on the
+    /// generator's 16-spp `test_0005` (a fine checker behind glass, where
+    /// the region fade cost WSKP-3 2 dB), so the region fade does not apply
+    /// and the fallback moves the output there. The pair's noise says it is
+    /// noise (its two estimates differ there), and the region fade leaves
+    /// the output alone.
     #[test]
     fn a_frame_of_many_samples_keeps_the_fallback_on_its_textured_region() {
         let mut ctx = crate::methods::context(&crate::methods::Settings::default()).unwrap();
         let (w, h) = (4 * TILE, 2 * TILE);
         let n = w * h;
         let (a, b) = half_noisy(w, h, 3 * TILE / 2, |_| 1.0);
-        let wrong = vec![2.0f32; 3 * n];
-        let mut o = wrong.clone();
-        to_input(&mut ctx, &mut o, &a, Some(Pair { b: &b, colour_is_mean: false }), &vec![0.5; 3 * n], w, h, 1.0)
-            .unwrap();
-        let moved = (0..3)
-            .flat_map(|c| (0..h).flat_map(move |y| (0..TILE / 2).map(move |x| c * n + y * w + x)))
-            .filter(|&i| o[i] < 2.0)
-            .count();
-        assert!(moved > 3 * h * TILE / 4, "{moved} of {} pixels of the textured part moved", 3 * h * TILE / 2);
+        let moved = |pair: Option<Pair<'_>>, ctx: &mut Ctx| {
+            let mut o = vec![2.0f32; 3 * n];
+            to_input(ctx, &mut o, &a, pair, &vec![0.5; 3 * n], w, h, 1.0).unwrap();
+            (0..3)
+                .flat_map(|c| (0..h).flat_map(move |y| (0..TILE / 2).map(move |x| c * n + y * w + x)))
+                .filter(|&i| o[i] < 2.0)
+                .count()
+        };
+        let all = 3 * h * TILE / 2;
+        let one = moved(None, &mut ctx);
+        assert!(one > all / 2, "one estimate: {one} of {all} pixels of the textured part moved");
+        let paired = moved(Some(Pair { b: &b, colour_is_mean: false }), &mut ctx);
+        assert_eq!(paired, 0, "the pair: {paired} of {all} pixels of the noisy part moved");
     }
 
     /// The region levels: the tiles' medians at their centres, linear
