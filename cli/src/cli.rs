@@ -202,6 +202,10 @@ fn learning_rate(s: &str) -> std::result::Result<f32, String> {
     real(s, 0.0, 1.0).map(|v| v as f32)
 }
 
+fn band_weight(s: &str) -> std::result::Result<f32, String> {
+    real(s, 0.0, 100.0).map(|v| v as f32)
+}
+
 /// `--emulate-spp`'s list (a newtype: clap reads a bare `Vec` as repeats).
 #[derive(Clone, Debug)]
 struct SppList(Vec<u32>);
@@ -583,6 +587,11 @@ struct TrainCli {
     /// for noisy targets such as 128-spp renders but lenient with fireflies left in the output)
     #[arg(long, value_enum, default_value_t = Loss::L1Log)]
     loss: Loss,
+    /// Weight of a band term added to the loss: the L1 of the log-space error band-passed as the
+    /// 5x5 minus the 17x17 box mean, which prices the low-frequency blotches a per-pixel loss
+    /// barely sees (0: off)
+    #[arg(long, value_name = "F", default_value = "0", value_parser = band_weight)]
+    band_weight: f32,
     /// The learning rate's schedule over --steps (cosine: warm-up, then a cosine down to lr/100)
     #[arg(long, value_enum, default_value_t = mcdenoise::train::Schedule::Cosine)]
     lr_schedule: mcdenoise::train::Schedule,
@@ -785,6 +794,7 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
             a.crop = t.crop;
             a.lr = t.lr;
             a.loss = t.loss;
+            a.band = t.band_weight;
             a.clip = t.clip;
             a.logit_bound = t.logit_bound;
             a.ta_clamp = t.ta_clamp;

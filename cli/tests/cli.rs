@@ -663,3 +663,13 @@ fn emulate_int8_is_refused_where_it_means_nothing() {
     );
     assert!(!o.exists() || std::fs::read_dir(&o).unwrap().next().is_none(), "nothing written");
 }
+
+/// A band weight that is not a number from 0 to 100 names the flag, exit 2.
+#[test]
+fn train_names_a_bad_band_weight() {
+    for bad in ["-1", "nan", "x", "101"] {
+        let flag = format!("--band-weight={bad}");
+        let out = run(&["train", "--data", ".", "-o", "w.safetensors", "--steps", "1", &flag]);
+        assert_fails(&out, 2, "--band-weight");
+    }
+}

@@ -139,11 +139,11 @@ fn training_is_deterministic_and_thread_count_independent() {
 /// AFN's whole training head (kernels' softmax, the two applies, the pool,
 /// the compositor, the sigmoid, the refinement in log1p space, the
 /// remodulation and the loss) with both networks: the gradient against
-/// finite differences of the loss.
+/// finite differences of the loss, with and without the band term.
 #[test]
 fn afn_gradient_matches_finite_differences() {
     use mcdenoise::methods::afn;
-    use mcdenoise::nn::loss::Loss;
+    use mcdenoise::nn::loss::{Loss, Objective};
     let (kn, rn) = (afn::kernel_net().unwrap(), afn::refine_net().unwrap());
     let s = 12;
     let n = s * s;
@@ -172,10 +172,10 @@ fn afn_gradient_matches_finite_differences() {
         wss[0].aux[afn::buf::DATA].copy_from_slice(&data);
         Ok(())
     };
-    let head = |_: usize, nets: &Nets<'_>, wss: &mut [Workspace]| {
-        afn::head(nets, wss, Loss::RelMse, 1.0, true, afn::Variant::Fusion)
-    };
-    for isa in isas_under_test() {
+    for (isa, band) in isas_under_test().into_iter().flat_map(|i| [(i, 0.0f32), (i, 1.0)]) {
+        let head = |_: usize, nets: &Nets<'_>, wss: &mut [Workspace]| {
+            afn::head(nets, wss, Objective { loss: Loss::RelMse, band }, 1.0, true, afn::Variant::Fusion)
+        };
         let mut tr = make(&params);
         tr.step(&pool, isa, &fill, &head, false).unwrap();
         let grad = tr.grad().to_vec();
@@ -192,7 +192,7 @@ fn afn_gradient_matches_finite_differences() {
             let fdv = (loss_at(&a) - loss_at(&b)) / (2.0 * hh as f64);
             assert!(
                 (fdv - grad[i] as f64).abs() <= 3e-3 * scale + 3e-2 * fdv.abs(),
-                "{isa:?}: parameter {i}: backward {} vs finite differences {fdv} (scale {scale})",
+                "{isa:?}, band {band}: parameter {i}: backward {} vs finite differences {fdv} (scale {scale})",
                 grad[i]
             );
             checked += 1;

@@ -26,6 +26,14 @@
 //! L1 in log space is the default of `mcdenoise train`: on the same data,
 //! steps and seed, WSKP-3 trained with it validates 0.35 dB higher than
 //! with the noisy-target relMSE (docs/training.md).
+//!
+//! A band term can be added to any of them ([`Objective`]): the L1 of the
+//! log-space error `s(x) - s(r)` band-passed as the difference of two box
+//! means (5x5 minus 17x17, zero outside the crop), which a per-pixel loss
+//! barely sees: an output's low-frequency blotches on a flat wall cost it
+//! little per pixel, since they are small beside the noise of a 1-spp
+//! input's neighbours, but they are what the eye sees (docs/quality.md,
+//! "Blotches on flat walls", measures the same band with `tools/blotch.py`).
 
 /// Which loss.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -138,6 +146,114 @@ impl Loss {
     }
 }
 
+/// The band term's two box radii (5x5 and 17x17 windows).
+pub const BAND_RADII: (usize, usize) = (2, 8);
+
+/// A loss and the weight of the band term beside it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Objective {
+    /// The per-element loss.
+    pub loss: Loss,
+    /// The band term's weight (0: none; [`band_l1_log`]).
+    pub band: f32,
+}
+
+impl From<Loss> for Objective {
+    fn from(loss: Loss) -> Self {
+        Objective { loss, band: 0.0 }
+    }
+}
+
+impl Objective {
+    /// The loss of `x` against `r` (planes of `w` x `h`) times `exposure`,
+    /// plus `band` times the band term, and the gradient of the sum into
+    /// `grad`, scaled by `scale` ([`Loss::eval`]).
+    #[allow(clippy::too_many_arguments)]
+    pub fn eval(self, x: &[f32], r: &[f32], grad: &mut [f32], w: usize, h: usize, scale: f32, exposure: f32) -> f32 {
+        let l = self.loss.eval(x, r, grad, scale, exposure);
+        if self.band > 0.0 && w * h > 0 {
+            l + self.band * band_l1_log(x, r, grad, w, h, self.band * scale, exposure)
+        } else {
+            l
+        }
+    }
+}
+
+/// Into `out` (`w` x `h`), the mean of `a` over the `(2r+1)^2` window with
+/// zero outside the plane (the same divisor everywhere, so the operator is
+/// symmetric: its transpose is itself).
+fn box_zero(a: &[f32], out: &mut [f32], w: usize, h: usize, r: usize) {
+    let mut rows = vec![0.0f64; w * h];
+    let mut prefix = vec![0.0f64; w.max(h) + 1];
+    for y in 0..h {
+        for x in 0..w {
+            prefix[x + 1] = prefix[x] + a[y * w + x] as f64;
+        }
+        for x in 0..w {
+            rows[y * w + x] = prefix[(x + r + 1).min(w)] - prefix[x.saturating_sub(r)];
+        }
+    }
+    let k = 1.0 / ((2 * r + 1) * (2 * r + 1)) as f64;
+    for x in 0..w {
+        for y in 0..h {
+            prefix[y + 1] = prefix[y] + rows[y * w + x];
+        }
+        for y in 0..h {
+            out[y * w + x] = ((prefix[(y + r + 1).min(h)] - prefix[y.saturating_sub(r)]) * k) as f32;
+        }
+    }
+}
+
+/// The band-passed operator `B a = box_2(a) - box_8(a)` ([`BAND_RADII`]).
+fn band_pass(a: &[f32], out: &mut [f32], w: usize, h: usize) {
+    let mut wide = vec![0.0f32; a.len()];
+    box_zero(a, out, w, h, BAND_RADII.0);
+    box_zero(a, &mut wide, w, h, BAND_RADII.1);
+    for (o, v) in out.iter_mut().zip(&wide) {
+        *o -= v;
+    }
+}
+
+/// The band term: the mean over the elements of `|B (s(e x) - s(e r))|`,
+/// per plane of `w` x `h` (`x.len() / (w h)` planes), with `s(v) = sign(v)
+/// ln(1 + |v|)` and `B` the difference of the 5x5 and 17x17 box means
+/// ([`BAND_RADII`]); its gradient with respect to `x`, times `scale`, is
+/// added to `grad`.
+pub fn band_l1_log(x: &[f32], r: &[f32], grad: &mut [f32], w: usize, h: usize, scale: f32, exposure: f32) -> f32 {
+    let n = w * h;
+    if n == 0 || x.is_empty() {
+        return 0.0;
+    }
+    let e = if exposure > 0.0 && exposure.is_finite() { exposure } else { 1.0 };
+    let s = |v: f32| v.signum() * v.abs().ln_1p();
+    let (mut d, mut b) = (vec![0.0f32; n], vec![0.0f32; n]);
+    let count = x.len() as f64;
+    let mut total = 0.0f64;
+    for ((xp, rp), gp) in x.chunks_exact(n).zip(r.chunks_exact(n)).zip(grad.chunks_exact_mut(n)) {
+        for ((dv, &a), &t) in d.iter_mut().zip(xp).zip(rp) {
+            *dv = s(e * a) - s(e * t);
+        }
+        band_pass(&d, &mut b, w, h);
+        total += b.iter().map(|v| v.abs() as f64).sum::<f64>();
+        // d/dd of sum |B d| is B^T sign(B d) = B sign(B d).
+        for v in b.iter_mut() {
+            *v = if *v > 0.0 {
+                1.0
+            } else if *v < 0.0 {
+                -1.0
+            } else {
+                0.0
+            };
+        }
+        band_pass(&b, &mut d, w, h);
+        let k = scale as f64 / count * e as f64;
+        for ((g, &a), &dv) in gp.iter_mut().zip(xp).zip(&d) {
+            *g += (k * dv as f64 / (1.0 + (e * a).abs() as f64)) as f32;
+        }
+    }
+    (total / count) as f32
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -214,5 +330,116 @@ mod tests {
         let mut g1 = [0.0f32; 1];
         let firefly = Loss::L1Log.eval(&[100.0], &[1.0], &mut g1, 1.0, 1.0) as f64;
         assert!((firefly - (101.0f64 / 2.0).ln()).abs() < 1e-5, "{firefly}");
+    }
+    /// A xorshift sequence of values in `lo..hi`.
+    fn values(seed: u32, len: usize, lo: f32, hi: f32) -> Vec<f32> {
+        // (A small seed's first values are small: scramble it, skip some.)
+        let mut x = seed.wrapping_mul(0x9E37_79B9) | 1;
+        (0..len + 8)
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 17;
+                x ^= x << 5;
+                lo + (hi - lo) * (x >> 8) as f32 / (1u32 << 24) as f32
+            })
+            .skip(8)
+            .collect()
+    }
+
+    /// The band term against an f64 oracle of its definition: each box mean
+    /// summed over the window's pixels inside the plane, divided by the
+    /// whole window's size; planes smaller than the wide window included.
+    #[test]
+    fn band_term_is_its_definition() {
+        let s = |v: f64| v.signum() * v.abs().ln_1p();
+        for (w, h, exposure) in [(13usize, 10usize, 1.0f32), (30, 24, 0.25), (5, 40, 3.0)] {
+            let n = w * h;
+            let x = values(7 + w as u32, 3 * n, -0.2, 6.0);
+            let r = values(99 + h as u32, 3 * n, 0.0, 5.0);
+            let e = exposure as f64;
+            let boxed = |d: &[f64], px: usize, py: usize, rad: usize| {
+                let mut sum = 0.0;
+                for qy in py.saturating_sub(rad)..(py + rad + 1).min(h) {
+                    for qx in px.saturating_sub(rad)..(px + rad + 1).min(w) {
+                        sum += d[qy * w + qx];
+                    }
+                }
+                sum / ((2 * rad + 1) * (2 * rad + 1)) as f64
+            };
+            let mut want = 0.0;
+            for c in 0..3 {
+                let d: Vec<f64> = (0..n).map(|i| s(e * x[c * n + i] as f64) - s(e * r[c * n + i] as f64)).collect();
+                for py in 0..h {
+                    for px in 0..w {
+                        want += (boxed(&d, px, py, BAND_RADII.0) - boxed(&d, px, py, BAND_RADII.1)).abs();
+                    }
+                }
+            }
+            want /= (3 * n) as f64;
+            let mut g = vec![0.0f32; 3 * n];
+            let got = band_l1_log(&x, &r, &mut g, w, h, 1.0, exposure) as f64;
+            assert!((got - want).abs() <= 1e-5 * want.max(1e-3), "{w}x{h}: {got} vs {want}");
+        }
+    }
+
+    /// The band term's gradient (added to what the loss wrote) against
+    /// central differences of the objective, on a plane smaller than the wide
+    /// window and one larger.
+    #[test]
+    fn band_gradient_matches_finite_differences() {
+        for (w, h) in [(9usize, 7usize), (21, 19)] {
+            let n = w * h;
+            let x = values(3, 3 * n, 0.0, 4.0);
+            let r = values(5, 3 * n, 0.0, 4.0);
+            let obj = Objective { loss: Loss::L1Log, band: 2.5 };
+            let mut g = vec![0.0f32; 3 * n];
+            obj.eval(&x, &r, &mut g, w, h, 0.5, 1.5);
+            let f = |i: usize, d: f64| {
+                let mut xs = x.clone();
+                xs[i] = (xs[i] as f64 + d) as f32;
+                let mut t = vec![0.0f32; 3 * n];
+                obj.eval(&xs, &r, &mut t, w, h, 0.5, 1.5) as f64 * 0.5
+            };
+            for i in (0..3 * n).step_by(7) {
+                let hd = 1e-3;
+                let fd = (f(i, hd) - f(i, -hd)) / (2.0 * hd);
+                assert!((fd - g[i] as f64).abs() < 1e-4 + 1e-2 * fd.abs(), "{w}x{h} element {i}: {} vs {fd}", g[i]);
+            }
+        }
+    }
+
+    /// With no band weight the objective is the loss, value and gradient.
+    #[test]
+    fn no_band_is_the_loss() {
+        let (w, h) = (11, 6);
+        let x = values(1, 3 * w * h, 0.0, 3.0);
+        let r = values(2, 3 * w * h, 0.0, 3.0);
+        let (mut g1, mut g2) = (vec![0.0f32; 3 * w * h], vec![0.0f32; 3 * w * h]);
+        let a = Objective::from(Loss::L1Log).eval(&x, &r, &mut g1, w, h, 0.3, 2.0);
+        let b = Loss::L1Log.eval(&x, &r, &mut g2, 0.3, 2.0);
+        assert_eq!(a, b);
+        assert_eq!(g1, g2);
+    }
+
+    /// What the term is for: an error in 8-pixel blotches costs it many times
+    /// what a pixel-scale error of the same per-pixel size does, which the
+    /// per-pixel L1 in log space prices the same.
+    #[test]
+    fn blotches_cost_more_than_pixel_noise() {
+        let (w, h) = (64, 64);
+        let r = vec![1.0f32; w * h];
+        // Up to 1.5 or down to 0.6: the same distance in log space,
+        // ln(2.5 / 2) = ln(2 / 1.6).
+        let down = 0.6f32;
+        let pixel: Vec<f32> = (0..w * h).map(|i| if (i % w + i / w) % 2 == 0 { 1.5 } else { down }).collect();
+        let blotch: Vec<f32> =
+            (0..w * h).map(|i| if ((i % w) / 8 + (i / w) / 8) % 2 == 0 { 1.5 } else { down }).collect();
+        let mut g = vec![0.0f32; w * h];
+        let (lp, lb) =
+            (Loss::L1Log.eval(&pixel, &r, &mut g, 1.0, 1.0), Loss::L1Log.eval(&blotch, &r, &mut g, 1.0, 1.0));
+        assert!((lp - lb).abs() < 1e-6 * lp, "the same per-pixel loss: {lp} {lb}");
+        let bp = band_l1_log(&pixel, &r, &mut g, w, h, 1.0, 1.0);
+        let bb = band_l1_log(&blotch, &r, &mut g, w, h, 1.0, 1.0);
+        assert!(bb > 5.0 * bp, "blotches {bb}, pixel noise {bp}");
     }
 }

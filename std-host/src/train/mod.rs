@@ -28,7 +28,7 @@ use crate::io::list_inputs;
 use crate::methods::{afn, wskp};
 use crate::methods::{context, Denoiser, Settings, TemporalAccumulation, Timings};
 use crate::metrics;
-use crate::nn::loss::Loss;
+use crate::nn::loss::{Loss, Objective};
 use crate::nn::weights::{self, File, Form, Tensor};
 use crate::nn::{Net, Nets, Rng, Trainer, Workspace};
 use crate::runtime::precision::PrecisionKind;
@@ -63,6 +63,9 @@ pub struct TrainArgs {
     pub logit_bound: f32,
     /// The loss.
     pub loss: Loss,
+    /// The band term's weight beside the loss (0: none;
+    /// [`crate::nn::loss::band_l1_log`]).
+    pub band: f32,
     /// Seed of initialisation and sampling.
     pub seed: u64,
     /// Worker threads.
@@ -147,6 +150,7 @@ impl Default for TrainArgs {
             clip: 0.0,
             logit_bound: 30.0,
             loss: Loss::L1Log,
+            band: 0.0,
             seed: 1,
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
             isa: Isa::detect(),
@@ -505,6 +509,13 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     let dirs = sequence_dirs(&a.data)?;
     let nparams: usize = nets.iter().map(|n| n.params).sum();
     eprintln!("train {}: {} parameters; loading {}", model.name(), nparams, a.data.display());
+    if a.band > 0.0 {
+        eprintln!(
+            "loss: {} + {} x the band term (5x5 - 17x17 box means of the log-space error)",
+            a.loss.name(),
+            a.band
+        );
+    }
     // One sequence at a time: its frames are dropped once its samples
     // (each estimate's accumulation and features) are made.
     let pool = crate::runtime::par::Pool::new(a.threads).map_err(HostError::Usage)?;
@@ -682,7 +693,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     };
     let mut ema: Option<f32> = None;
     let mut skipped = 0u64;
-    let (isa, loss, scale) = (a.isa, a.loss, 1.0 / a.batch as f32);
+    let (isa, loss, scale) = (a.isa, Objective { loss: a.loss, band: a.band }, 1.0 / a.batch as f32);
     let validate_now = |tr: &Trainer| -> Result<f64> {
         let make = |f: &Frame| model.denoiser(f, &tr.nets, &tr.params);
         validate(&val, &make, a.threads, a.isa)

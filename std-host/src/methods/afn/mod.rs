@@ -39,7 +39,7 @@ use crate::error::{HostError, Result};
 use crate::io::frame::{Buffer, Frame};
 use crate::methods::{features, Ctx, Denoiser, Plan, TemporalAccumulation, Timings};
 use crate::nn::infer::Inference;
-use crate::nn::loss::Loss;
+use crate::nn::loss::Objective;
 use crate::nn::weights::File;
 use crate::nn::{Conv, Layer, Net, NetDesc, Nets, Workspace};
 use crate::runtime::par::Pool;
@@ -263,7 +263,7 @@ fn vm(d: &mut [f32], c: usize, w: usize, h: usize) -> Result<ViewMut<'_, f32>> {
 pub fn head(
     nets: &Nets<'_>,
     wss: &mut [Workspace],
-    loss: Loss,
+    loss: impl Into<Objective>,
     scale: f32,
     refine: bool,
     variant: Variant,
@@ -337,7 +337,7 @@ pub fn head(
     for k in 0..3 * n {
         outb[k] = (ob[k] + excess[k]) * alb[k];
     }
-    let l = loss.eval(outb, reff, g_out, scale, e);
+    let l = loss.into().eval(outb, reff, g_out, w, h, scale, e);
     // Back through the remodulation and the refinement to i.
     if refine {
         let ws1 = &mut rest[0];

@@ -24,7 +24,7 @@ use crate::error::{HostError, Result};
 use crate::io::frame::{Buffer, Frame};
 use crate::methods::{features, Ctx, Denoiser, Plan, TemporalAccumulation, Timings};
 use crate::nn::infer::Inference;
-use crate::nn::loss::Loss;
+use crate::nn::loss::Objective;
 use crate::nn::weights::File;
 use crate::nn::{Conv, Layer, Net, NetDesc, Workspace};
 use crate::runtime::precision::{HostPrecision, Kind, Planes};
@@ -265,7 +265,7 @@ pub fn logit_penalty(logits: &[f32], grad: &mut [f32], bound: f32, scale: f32) -
 pub fn head(
     ws: &mut Workspace,
     sizes: Sizes,
-    loss: Loss,
+    loss: impl Into<Objective>,
     scale: f32,
     bound: f32,
     isa: mcdenoise_core::Isa,
@@ -305,7 +305,7 @@ pub fn head(
     for k in 0..3 * n {
         out[k] += data[3 * n + k] * data[10 * n + k];
     }
-    let l = loss.eval(out, &data[6 * n..9 * n], g, scale, data[9 * n]);
+    let l = loss.into().eval(out, &data[6 * n..9 * n], g, w, h, scale, data[9 * n]);
     let (di, rest) = dy.split_at_mut(m * n);
     if sizes.keep() {
         // d/dlogit = sum_ch G (d c - F) beta (1 - beta); the filter's output
