@@ -181,7 +181,12 @@ def test_the_gil_is_released_while_denoising():
 
 
 def test_ctrl_c_interrupts_between_frames():
+    # Python's own Ctrl-C handler, as in a terminal: a shell that starts the
+    # suite in the background without job control leaves SIGINT ignored,
+    # which Python and this child inherit.
     script = (
+        "import signal\n"
+        "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
         "import mcdenoise, numpy as np, sys\n"
         "c = np.random.default_rng(1).random((720, 1280, 3), dtype=np.float32)\n"
         "d = mcdenoise.Denoiser('sure-atrous', threads=1)\n"
