@@ -245,15 +245,20 @@ pub fn to_input(
     // the slope of `log1p` at the window's mean level, squared, over that
     // level squared); the pair's noise does not take texture for noise.
     let regions = paired || {
-        let mean_ly = &mut sorted;
-        for (i, v) in mean_ly.iter_mut().enumerate() {
-            *v = (ly[i] + ly[n + i] + ly[2 * n + i]) / 3.0;
-        }
-        window_means(ctx, mean_ly, w, h);
-        for (v, &level) in mean_ly.iter_mut().zip(&m) {
-            let x = v.exp_m1().max(1e-3);
-            *v = level * ((1.0 + x) / x).powi(2);
-        }
+        ctx.pool.planes(vec![&mut sorted[..]], RUN, |start, runs| {
+            for (j, v) in runs[0].iter_mut().enumerate() {
+                let i = start + j;
+                *v = (ly[i] + ly[n + i] + ly[2 * n + i]) / 3.0;
+            }
+        });
+        window_means(ctx, &mut sorted, w, h);
+        let m = &m;
+        ctx.pool.planes(vec![&mut sorted[..]], RUN, |start, runs| {
+            for (v, &level) in runs[0].iter_mut().zip(&m[start..]) {
+                let x = v.exp_m1().max(1e-3);
+                *v = level * ((1.0 + x) / x).powi(2);
+            }
+        });
         *sorted.select_nth_unstable_by(n / 2, |a, b| a.total_cmp(b)).1 >= REGION_CV2
     };
     region_levels(&mut m, &mut sorted, w, h);

@@ -179,38 +179,20 @@ impl Objective {
     }
 }
 
-/// Into `out` (`w` x `h`), the mean of `a` over the `(2r+1)^2` window with
-/// zero outside the plane (the same divisor everywhere, so the operator is
-/// symmetric: its transpose is itself).
-fn box_zero(a: &[f32], out: &mut [f32], w: usize, h: usize, r: usize) {
-    let mut rows = vec![0.0f64; w * h];
-    let mut prefix = vec![0.0f64; w.max(h) + 1];
-    for y in 0..h {
-        for x in 0..w {
-            prefix[x + 1] = prefix[x] + a[y * w + x] as f64;
-        }
-        for x in 0..w {
-            rows[y * w + x] = prefix[(x + r + 1).min(w)] - prefix[x.saturating_sub(r)];
-        }
-    }
-    let k = 1.0 / ((2 * r + 1) * (2 * r + 1)) as f64;
-    for x in 0..w {
-        for y in 0..h {
-            prefix[y + 1] = prefix[y] + rows[y * w + x];
-        }
-        for y in 0..h {
-            out[y * w + x] = ((prefix[(y + r + 1).min(h)] - prefix[y.saturating_sub(r)]) * k) as f32;
-        }
-    }
-}
-
-/// The band-passed operator `B a = box_2(a) - box_8(a)` ([`BAND_RADII`]).
+/// The band-passed operator `B a = box_2(a) - box_8(a)` ([`BAND_RADII`]):
+/// each box the mean over the `(2r+1)^2` window with zero outside the
+/// plane (the same divisor everywhere, so `B` is symmetric: its transpose
+/// is itself).
 fn band_pass(a: &[f32], out: &mut [f32], w: usize, h: usize) {
-    let mut wide = vec![0.0f32; a.len()];
-    box_zero(a, out, w, h, BAND_RADII.0);
-    box_zero(a, &mut wide, w, h, BAND_RADII.1);
+    use crate::methods::features::box_sum;
+    let area = |r: usize| ((2 * r + 1) * (2 * r + 1)) as f32;
+    let (r0, r1) = BAND_RADII;
+    let mut wide = a.to_vec();
+    out.copy_from_slice(a);
+    box_sum(out, w, h, r0);
+    box_sum(&mut wide, w, h, r1);
     for (o, v) in out.iter_mut().zip(&wide) {
-        *o -= v;
+        *o = *o / area(r0) - v / area(r1);
     }
 }
 
@@ -334,16 +316,8 @@ mod tests {
     /// A xorshift sequence of values in `lo..hi`.
     fn values(seed: u32, len: usize, lo: f32, hi: f32) -> Vec<f32> {
         // (A small seed's first values are small: scramble it, skip some.)
-        let mut x = seed.wrapping_mul(0x9E37_79B9) | 1;
-        (0..len + 8)
-            .map(|_| {
-                x ^= x << 13;
-                x ^= x >> 17;
-                x ^= x << 5;
-                lo + (hi - lo) * (x >> 8) as f32 / (1u32 << 24) as f32
-            })
-            .skip(8)
-            .collect()
+        let mut next = crate::methods::test_noise::xorshift32(seed.wrapping_mul(0x9E37_79B9) | 1);
+        (0..len + 8).map(|_| lo + (hi - lo) * (next() >> 8) as f32 / (1u32 << 24) as f32).skip(8).collect()
     }
 
     /// The band term against an f64 oracle of its definition: each box mean
