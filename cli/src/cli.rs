@@ -453,6 +453,11 @@ struct DenoiseCli {
     /// published
     #[arg(long, help_heading = "Learned methods")]
     no_fallback: bool,
+    /// WSKP and AFN: without the wide pass (an edge-avoiding à-trous filter over the output where
+    /// the temporal history is short, for the low-frequency blotches the kernels leave of 1-spp
+    /// noise)
+    #[arg(long, help_heading = "Learned methods")]
+    no_wide_pass: bool,
     /// Write the colour as f16 [default: the input colour's pixel type]
     #[arg(long, help_heading = "Output", conflicts_with = "float")]
     half: bool,
@@ -746,6 +751,7 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
             let mut settings = d.settings.settings();
             settings.refine = !d.no_refine;
             settings.fallback = !d.no_fallback;
+            settings.wide = !d.no_wide_pass;
             let half = if d.half {
                 Some(true)
             } else if d.float {

@@ -119,6 +119,9 @@ pub mod view;
 
 pub use error::{Error, Result, Shape};
 pub use isa::Isa;
+/// The kernels' `e^x` without branches, for host loops that should vectorise
+/// (the same values as the SIMD kernels' to a few ulp; 0 below `-87`).
+pub use math::scalar::exp_select;
 pub use precision::{Element, F16Arith, Fixed, FloatElement, FloatPrecision, Precision, F16, F32};
 pub use view::{View, ViewMut};
 

@@ -39,7 +39,11 @@ pub fn exp_select(x: f32) -> f32 {
     p = p * r + EXP_C[2];
     p = p * r + EXP_C[1];
     p = p * r + EXP_C[0];
-    let scale = f32::from_bits(((n as i32 + 127) as u32) << 23);
+    // 2^n from the bits of `n + 127` placed in the low mantissa bits by the
+    // rounding constant (`n` is an integer in [-126, 127], so `n + 127` is
+    // in [1, 254]): no float-to-integer conversion, whose saturating
+    // semantics keep a loop from vectorising.
+    let scale = f32::from_bits((n + (ROUND_MAGIC + 127.0)).to_bits() << 23);
     if valid {
         p * scale
     } else {

@@ -175,42 +175,13 @@ pub fn to_input(
     if n == 0 {
         return Ok(());
     }
-    let e = if exposure > 0.0 && exposure.is_finite() { exposure } else { 1.0 };
+    let e = positive_exposure(exposure);
     let log = |v: f32| if v.is_finite() { (e * v).max(0.0).ln_1p() } else { 0.0 };
     // (Per-pixel passes run in runs of pixels on the pool.)
     const RUN: usize = 1 << 14;
-    let mut ly = vec![0.0f32; 3 * n];
-    ctx.pool.planes(vec![&mut ly[..]], RUN, |start, runs| {
-        for (o, &v) in runs[0].iter_mut().zip(&y[start..]) {
-            *o = log(v);
-        }
-    });
+    let (ly, mut raw) = log_and_noise(ctx, y, pair, w, h, e)?;
     let ly = &ly;
-    let mut raw = vec![0.0f32; n];
-    match pair {
-        Some(p) if p.b.len() == 3 * n => {
-            let b = p.b;
-            ctx.pool.planes(vec![&mut raw[..]], RUN, |start, runs| {
-                for (j, r) in runs[0].iter_mut().enumerate() {
-                    let i = start + j;
-                    *r = (0..3).map(|c| p.variance(ly[c * n + i], log(b[c * n + i]))).sum::<f32>() / 3.0;
-                }
-            });
-        }
-        _ => {
-            let src = View::new(ly, 3, w, h)?;
-            let (pool, scratch) = (&ctx.pool, &mut ctx.scratch);
-            pool.bands(ViewMut::new(&mut raw, 1, w, h)?, 16, scratch, 0, |b, y0, _| {
-                noise::local_noise_rows(&src, b, y0)
-            })?;
-        }
-    }
     let fin = |v: f32| if v.is_finite() { v.min(1e12) } else { 1e12 };
-    ctx.pool.planes(vec![&mut raw[..]], RUN, |_, runs| {
-        for v in runs[0].iter_mut() {
-            *v = fin(*v);
-        }
-    });
     // The noise levels: the 7x7 window mean of the estimate (per channel)
     // at every pixel; the frame's is their median, a region's the median
     // over its tile ([`region_levels`]). A 1-spp frame ends here.
@@ -329,9 +300,82 @@ pub fn to_input(
     Ok(())
 }
 
+/// `exposure` where it is positive and finite, else 1.
+pub(crate) fn positive_exposure(exposure: f32) -> f32 {
+    if exposure > 0.0 && exposure.is_finite() {
+        exposure
+    } else {
+        1.0
+    }
+}
+
+/// The input `y` (3 planes of `w x h`) in exposure-normalised `log1p`
+/// colour (`e` the exposure; non-finite values read as 0), and its noise
+/// variance per pixel (the channels' mean, finite, at most 1e12): from the
+/// pair where the frame has it, else the one-estimate local estimate
+/// ([`noise::local_noise_rows`]).
+pub(crate) fn log_and_noise(
+    ctx: &mut Ctx,
+    y: &[f32],
+    pair: Option<Pair<'_>>,
+    w: usize,
+    h: usize,
+    e: f32,
+) -> Result<(Vec<f32>, Vec<f32>)> {
+    let n = w * h;
+    let log = |v: f32| if v.is_finite() { (e * v).max(0.0).ln_1p() } else { 0.0 };
+    const RUN: usize = 1 << 14;
+    // `log(y)`: the exposure-scaled input (non-finite values as 0) through
+    // the core's SIMD `log1p`.
+    let mut ey = vec![0.0f32; 3 * n];
+    ctx.pool.planes(vec![&mut ey[..]], RUN, |start, runs| {
+        for (o, &v) in runs[0].iter_mut().zip(&y[start..]) {
+            *o = if v.is_finite() { e * v } else { 0.0 };
+        }
+    });
+    let mut ly = vec![0.0f32; 3 * n];
+    {
+        use mcdenoise_core::tonemap::{map, Map};
+        map::<mcdenoise_core::F32>(
+            ctx.isa,
+            Map::Log1p,
+            &View::new(&ey, 3, w, h)?,
+            &mut ViewMut::new(&mut ly, 3, w, h)?,
+        )?;
+    }
+    drop(ey);
+    let mut raw = vec![0.0f32; n];
+    match pair {
+        Some(p) if p.b.len() == 3 * n => {
+            let ly = &ly;
+            let b = p.b;
+            ctx.pool.planes(vec![&mut raw[..]], RUN, |start, runs| {
+                for (j, r) in runs[0].iter_mut().enumerate() {
+                    let i = start + j;
+                    *r = (0..3).map(|c| p.variance(ly[c * n + i], log(b[c * n + i]))).sum::<f32>() / 3.0;
+                }
+            });
+        }
+        _ => {
+            let src = View::new(&ly, 3, w, h)?;
+            let (pool, scratch) = (&ctx.pool, &mut ctx.scratch);
+            pool.bands(ViewMut::new(&mut raw, 1, w, h)?, 16, scratch, 0, |b, y0, _| {
+                noise::local_noise_rows(&src, b, y0)
+            })?;
+        }
+    }
+    let fin = |v: f32| if v.is_finite() { v.min(1e12) } else { 1e12 };
+    ctx.pool.planes(vec![&mut raw[..]], RUN, |_, runs| {
+        for v in runs[0].iter_mut() {
+            *v = fin(*v);
+        }
+    });
+    Ok((ly, raw))
+}
+
 /// Replaces each value of `m` (`w` x `h`) by the mean over its 7x7 window
 /// (the pixels inside the frame).
-fn window_means(ctx: &mut Ctx, m: &mut [f32], w: usize, h: usize) {
+pub(crate) fn window_means(ctx: &mut Ctx, m: &mut [f32], w: usize, h: usize) {
     crate::methods::features::box_sum(m, w, h, RADIUS);
     let span = |p: usize, len: usize| crate::methods::features::window_span(p, len, RADIUS);
     // Runs of whole rows.

@@ -23,6 +23,7 @@ pub mod bundled;
 pub mod cross;
 pub mod fallback;
 pub mod features;
+pub mod wide;
 pub mod wskp;
 
 pub use atrous::Atrous;
@@ -238,6 +239,8 @@ pub struct Settings {
     /// WSKP, AFN and cross: fall back towards the input where the output differs
     /// from it by more than its noise explains ([`fallback`]).
     pub fallback: bool,
+    /// WSKP and AFN: the wide pass where the history is short ([`wide`]).
+    pub wide: bool,
     /// Temporal accumulation's history clamp, in standard deviations of
     /// the frame's 5x5 neighbourhood (0: off; `None`: `ta`'s default
     /// [`TA_CLAMP`], the learned methods' [`ta_clamp_for`] their weights).
@@ -329,6 +332,7 @@ impl Default for Settings {
             weights: None,
             refine: true,
             fallback: true,
+            wide: true,
             ta_clamp: None,
             ta_reject: None,
             seed: crate::methods::cross::SEED,
@@ -453,6 +457,7 @@ fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Fr
             let file = crate::methods::bundled::wskp(settings.weights.as_deref(), settings.layers)?;
             let mut m = crate::methods::wskp::Wskp::<P>::new(first, &file, settings.layers)?
                 .with_fallback(settings.fallback)
+                .with_wide(settings.wide)
                 .with_int8(settings.emulate_int8)?;
             if let Some(k) = settings.ta_clamp {
                 m = m.with_ta_clamp(k)?;
@@ -467,6 +472,7 @@ fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Fr
             let mut m = crate::methods::afn::Afn::<P>::new(first, &file, settings.refine)?
                 .with_whole_maps(settings.afn_whole_maps)
                 .with_fallback(settings.fallback)
+                .with_wide(settings.wide)
                 .with_int8(settings.emulate_int8)?;
             if let Some(k) = settings.ta_clamp {
                 m = m.with_ta_clamp(k)?;
@@ -498,8 +504,12 @@ fn footprint_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, info: &
         MethodKind::Ta => TemporalAccumulation::<P>::footprint(info),
         MethodKind::Atrous => Atrous::<P>::footprint(info, false, settings),
         MethodKind::SureAtrous => Atrous::<P>::footprint(info, true, settings),
-        MethodKind::Wskp => crate::methods::wskp::Wskp::<P>::footprint(info, settings.layers, settings.threads),
-        MethodKind::Afn => crate::methods::afn::Afn::<P>::footprint(info, settings.threads, settings.afn_whole_maps),
+        MethodKind::Wskp => {
+            crate::methods::wskp::Wskp::<P>::footprint(info, settings.layers, settings.threads, settings.wide)
+        }
+        MethodKind::Afn => {
+            crate::methods::afn::Afn::<P>::footprint(info, settings.threads, settings.afn_whole_maps, settings.wide)
+        }
         MethodKind::Cross => crate::methods::cross::Cross::footprint(info),
     }
 }

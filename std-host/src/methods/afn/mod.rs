@@ -455,6 +455,8 @@ pub struct Afn<P: HostPrecision> {
     fallback: bool,
     /// The networks emulated in 8 bits ([`Inference::emulate_int8`]).
     int8: bool,
+    /// With the wide pass ([`crate::methods::wide`]).
+    wide: bool,
 }
 
 /// The networks ready to run in `P`: the kernel predictor without its
@@ -550,6 +552,7 @@ impl<P: HostPrecision> Afn<P> {
         info: &crate::io::frame::FrameInfo,
         threads: usize,
         whole_maps: bool,
+        wide: bool,
     ) -> crate::runtime::memory::Footprint {
         use crate::runtime::precision::store_bytes;
         let s = store_bytes::<P>();
@@ -567,7 +570,11 @@ impl<P: HostPrecision> Afn<P> {
             l.alloc(k1).alloc(6 * s).alloc((6 * s).div_ceil(4)).alloc(3 * s);
             l.alloc(12).free(3 * s);
             l.alloc(4 * RIN as u64 + RIN as u64 * s).alloc(12).temp(12);
-            // The fallback to the input.
+            // The wide pass (and the history counts it reads, decoded
+            // at the start of the frame), then the fallback to the input.
+            if wide {
+                l.temp(crate::methods::wide::TEMP_BYTES);
+            }
             l.temp(crate::methods::fallback::TEMP_BYTES);
         };
         // The first frame: the accumulation, the TA decode, the buffers (in
@@ -576,7 +583,7 @@ impl<P: HostPrecision> Afn<P> {
         // they are made.
         let mut first = crate::runtime::memory::Ledger::default();
         let history = TemporalAccumulation::<P>::step_ledger(info, &mut first);
-        first.alloc(12).alloc(bufs);
+        first.alloc(12 + 4 * u64::from(wide)).alloc(bufs);
         if P::FIXED_POINT {
             first.temp(
                 ranges_bytes_per_pixel(&body_n)
@@ -590,7 +597,7 @@ impl<P: HostPrecision> Afn<P> {
         let mut later = crate::runtime::memory::Ledger::default();
         later.alloc(bufs + CIN as u64 * s + body + refine_net);
         TemporalAccumulation::<P>::step_ledger(info, &mut later);
-        later.alloc(12);
+        later.alloc(12 + 4 * u64::from(wide));
         tail(&mut later);
         let w = info.width;
         let sl = stream_scratch_len::<P>(w, STREAM_ROWS).max(unfold::scratch_len::<P>(K, 3, w));
@@ -628,6 +635,7 @@ impl<P: HostPrecision> Afn<P> {
         if variant != Variant::Fusion {
             plan.skipped.push(("scale compositor", format!("the {} variant filters one image", variant.name())));
         }
+        crate::methods::wide::plan(&mut plan, true);
         crate::methods::fallback::plan(&mut plan, true, first.has(crate::io::frame::Buffer::ColorB));
         Ok(Afn {
             plan,
@@ -642,6 +650,7 @@ impl<P: HostPrecision> Afn<P> {
             whole_maps: false,
             fallback: true,
             int8: false,
+            wide: true,
         })
     }
 
@@ -661,6 +670,14 @@ impl<P: HostPrecision> Afn<P> {
     /// estimate counts it).
     pub fn with_whole_maps(mut self, whole: bool) -> Self {
         self.whole_maps = whole;
+        self
+    }
+
+    /// With or without the wide pass ([`crate::methods::wide`]; on unless
+    /// told).
+    pub fn with_wide(mut self, on: bool) -> Self {
+        self.wide = on;
+        crate::methods::wide::plan(&mut self.plan, on);
         self
     }
 
@@ -691,8 +708,9 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
         let (wh, hh) = (w.div_ceil(2), h.div_ceil(2));
         let n = w * h;
         let isa = ctx.isa;
-        let (color, _) = self.ta.step(f, ctx, t)?;
+        let (color, counts) = self.ta.step(f, ctx, t)?;
         let ta = t.time("decode", || color.decode::<P>());
+        let counts = if self.wide { t.time("decode", || counts.decode::<P>()) } else { Vec::new() };
         let bufs = self.bufs.get_or_insert_with(Vec::new);
         if bufs.first().is_none_or(|x| x.len() != CIN * n) {
             *bufs = vec![vec![0.0; CIN * n], vec![0.0; 3 * n], vec![0.0; 3 * n], vec![0.0; 3 * n], vec![0.0; 3 * n]];
@@ -829,6 +847,18 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
             for k in 0..3 * n {
                 out[k] = (i[k] + ex[k]) * alb[k];
             }
+        }
+        if self.wide {
+            use crate::io::frame::Buffer;
+            let colour = f.require(Buffer::Color, "afn")?;
+            let guides = crate::methods::wide::Guides {
+                albedo: f.require(Buffer::Albedo, "afn")?,
+                normal: f.require(Buffer::Normal, "afn")?,
+                depth: f.require(Buffer::Depth, "afn")?,
+            };
+            t.time("wide pass", || {
+                crate::methods::wide::pass(ctx, &mut out, colour, f.pair(), &counts, guides, w, h, e)
+            })?;
         }
         if self.fallback {
             let albedo = f.require(crate::io::frame::Buffer::Albedo, "afn")?;

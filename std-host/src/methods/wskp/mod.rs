@@ -359,6 +359,8 @@ pub struct Wskp<P: HostPrecision> {
     fallback: bool,
     /// The network emulated in 8 bits ([`Inference::emulate_int8`]).
     int8: bool,
+    /// With the wide pass ([`crate::methods::wide`]).
+    wide: bool,
 }
 
 /// The network input, radiance and albedo stored in a precision other than f32.
@@ -373,6 +375,8 @@ struct Bufs {
     ex: Vec<f32>,
     /// The identity's weight per pixel (size 1; empty without it).
     keep: Vec<f32>,
+    /// The history counts in f32 (for the wide pass).
+    counts: Vec<f32>,
 }
 
 impl Bufs {
@@ -384,6 +388,7 @@ impl Bufs {
             alb: vec![0.0; 3 * n],
             ex: vec![0.0; 3 * n],
             keep: Vec::new(),
+            counts: vec![0.0; n],
         }
     }
 }
@@ -430,11 +435,13 @@ impl<P: HostPrecision> Wskp<P> {
         info: &crate::io::frame::FrameInfo,
         layers: usize,
         threads: usize,
+        wide: bool,
     ) -> crate::runtime::memory::Footprint {
         use crate::runtime::precision::{store_bytes, store_is};
         let s = store_bytes::<P>();
         let f32s = store_is::<P, f32>();
-        let bufs = 4 * (3 + 10 + 3 + 3 + 3 + 1);
+        // (With the wide pass, the history counts in f32 too.)
+        let bufs = 4 * (3 + 10 + 3 + 3 + 3 + 1 + u64::from(wide));
         let stored = if f32s { 0 } else { 16 * s };
         // Another layer count is refused when the method is built.
         let network = net_for(if layers == 3 { 3 } else { 6 }, Sizes::ALL_AND_INPUT).expect("3 or 6 layers");
@@ -444,7 +451,10 @@ impl<P: HostPrecision> Wskp<P> {
             if !f32s {
                 l.temp(3 * s);
             }
-            // The fallback to the input.
+            // The wide pass, then the fallback to the input.
+            if wide {
+                l.temp(crate::methods::wide::TEMP_BYTES);
+            }
             l.temp(crate::methods::fallback::TEMP_BYTES);
         };
         let mut first = crate::runtime::memory::Ledger::default();
@@ -481,8 +491,21 @@ impl<P: HostPrecision> Wskp<P> {
             s if s.count() == 1 => "importance filter (one window size, the weights' sizes metadata)",
             _ => "fused importance filter (the weights' sizes metadata)",
         });
+        crate::methods::wide::plan(&mut plan, true);
         crate::methods::fallback::plan(&mut plan, true, first.has(crate::io::frame::Buffer::ColorB));
-        Ok(Wskp { plan, sizes, net, params, ta, infer: None, bufs: None, stored: None, fallback: true, int8: false })
+        Ok(Wskp {
+            plan,
+            sizes,
+            net,
+            params,
+            ta,
+            infer: None,
+            bufs: None,
+            stored: None,
+            fallback: true,
+            int8: false,
+            wide: true,
+        })
     }
 
     /// Emulates an 8-bit ImportanceNet ([`Inference::emulate_int8`]): its
@@ -494,6 +517,14 @@ impl<P: HostPrecision> Wskp<P> {
         }
         self.int8 = on;
         Ok(self)
+    }
+
+    /// With or without the wide pass ([`crate::methods::wide`]; on unless
+    /// told).
+    pub fn with_wide(mut self, on: bool) -> Self {
+        self.wide = on;
+        crate::methods::wide::plan(&mut self.plan, on);
+        self
     }
 
     /// With or without the fallback to the input
@@ -517,10 +548,13 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
         let (w, h) = (f.width, f.height);
         let n = w * h;
         let isa = ctx.isa;
-        let (color, _) = self.ta.step(f, ctx, t)?;
+        let (color, counts) = self.ta.step(f, ctx, t)?;
         let bufs = self.bufs.get_or_insert_with(|| Bufs::new(n));
         if bufs.x.len() != 10 * n {
             *bufs = Bufs::new(n);
+        }
+        if self.wide {
+            t.time("decode", || P::decode(&counts.data, &mut bufs.counts, counts.frac));
         }
         // The accumulated colour in f32: borrowed when that is the storage.
         let ta: &[f32] = match P::store_as_f32(&color.data) {
@@ -635,6 +669,18 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
         // The excess the filter left out goes back at its pixel, remodulated.
         for ((o, &d), &e) in out.iter_mut().zip(&bufs.alb).zip(&bufs.ex) {
             *o += d * e;
+        }
+        if self.wide {
+            use crate::io::frame::Buffer;
+            let colour = f.require(Buffer::Color, "wskp")?;
+            let guides = crate::methods::wide::Guides {
+                albedo: a,
+                normal: f.require(Buffer::Normal, "wskp")?,
+                depth: f.require(Buffer::Depth, "wskp")?,
+            };
+            t.time("wide pass", || {
+                crate::methods::wide::pass(ctx, &mut out, colour, f.pair(), &bufs.counts, guides, w, h, exposure)
+            })?;
         }
         if self.fallback {
             let colour = f.require(crate::io::frame::Buffer::Color, "wskp")?;

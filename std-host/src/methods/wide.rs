@@ -1,0 +1,569 @@
+//! The wide pass: an edge-avoiding à-trous filter (Dammertz et al. 2010)
+//! over the learned filters' output, its colour gate set by the noise the
+//! output has left where the temporal history is short.
+//!
+//! Without history (a sequence's first frame, a region a pan has just
+//! uncovered, a light that moved and whose history is rejected) a 13x13
+//! (WSKP) or 7x7-at-two-scales (AFN) kernel over 1-spp noise leaves
+//! low-frequency blotches on flat walls, 10-20 pixels across
+//! (`tools/blotch.py`, docs/quality.md). This pass filters the output
+//! once more: [`LEVELS`] à-trous steps of the 3-tap B-spline
+//! `(1/4, 1/2, 1/4)` (holes 1, 2 and 4 pixels apart, a 15x15 reach), each
+//! tap weighted by `exp(-t)`,
+//! `t = |n_p - n_q|^2 / s_n^2 + |a_p - a_q|^2 / s_a^2
+//!    + |z_p - z_q| / (s_z hole z_p) + |c_p - c_q|^2 / (v_p + v_q)`,
+//! with `n` the normal, `a` the albedo, `z` the depth, `c` the output's
+//! colour and `v` its residual noise variance. `v` starts as [`GATE`] times
+//! the input's noise variance (its 7x7 window mean; from the pair where the
+//! frame has one) over the pixel's history count, and is carried from
+//! level to level with the squared normalised weights, as the
+//! variance-guided à-trous filter of Schied et al. 2017 (SVGF) carries
+//! its variance: where the history is long `v` is small and the gate
+//! closes; where it is short the blotches, whose amplitude is a fraction of
+//! the input's noise, are averaged over the surface, and shading, albedo
+//! and geometry edges stop the filter. The three levels are where the
+//! figures stopped improving (docs/quality.md, "The wide pass").
+//!
+//! Everything in exposure-normalised `log1p` colour, as the fallback
+//! ([`crate::methods::fallback`]), so that `denoise(k x) = k denoise(x)`;
+//! in f32 on the decoded output in every precision, before the fallback.
+
+use mcdenoise_core::tonemap::{self, Map};
+use mcdenoise_core::{Isa, View, ViewMut, F32};
+
+use crate::error::Result;
+use crate::io::frame::Pair;
+use crate::methods::fallback::{log_and_noise, positive_exposure, window_means};
+use crate::methods::Ctx;
+
+/// À-trous levels (holes 1, 2 and 4 pixels apart).
+pub const LEVELS: u32 = 3;
+/// The colour gate: a squared colour difference (summed over the
+/// channels) is compared with this multiple of the two pixels' residual
+/// noise variances' sum.
+pub const GATE: f32 = 8.0;
+/// Normal difference scale.
+pub const SIGMA_NORMAL: f32 = 0.3;
+/// Albedo difference scale.
+pub const SIGMA_ALBEDO: f32 = 0.2;
+/// Relative depth difference scale, per pixel of hole spacing.
+pub const SIGMA_DEPTH: f32 = 0.02;
+
+/// The stage's name in plans.
+pub const STAGE: &str = "wide pass (à-trous over the output where the history is short)";
+
+/// Bytes per pixel [`pass`] allocates for the time it runs (at its peak:
+/// the noise, two copies of the colour and variance, the guides).
+pub const TEMP_BYTES: u64 = 4 * 16;
+
+/// Records the stage in a method's plan: built, or skipped by
+/// `--no-wide-pass` (replacing an earlier entry of either kind).
+pub fn plan(plan: &mut crate::methods::Plan, on: bool) {
+    plan.built.retain(|s| *s != STAGE);
+    plan.skipped.retain(|(s, _)| *s != STAGE);
+    if on {
+        // Before the fallback to the input, which runs after it.
+        let at = plan.built.iter().position(|s| s.starts_with("fallback to the input")).unwrap_or(plan.built.len());
+        plan.built.insert(at, STAGE);
+    } else {
+        plan.skipped.push((STAGE, "--no-wide-pass".into()));
+    }
+}
+
+/// The guides of the pass, each of `w x h` pixels: albedo and normal (3
+/// planes), depth (1 plane).
+#[derive(Clone, Copy, Debug)]
+pub struct Guides<'a> {
+    /// The albedo.
+    pub albedo: &'a [f32],
+    /// The world-space normal.
+    pub normal: &'a [f32],
+    /// The depth.
+    pub depth: &'a [f32],
+}
+
+/// The edge-stopping scales.
+#[derive(Clone, Copy, Debug)]
+struct Stops {
+    normal: f32,
+    albedo: f32,
+    depth: f32,
+}
+
+/// Filters the output `o` (3 planes of `w x h`, linear) in place (see the
+/// module). `y`: the frame's colour (3 planes), whose noise, from `pair`
+/// where given, over `counts` (the history count per pixel, 1 plane; a
+/// count under 1 counts as 1) is the output's residual noise estimate.
+#[allow(clippy::too_many_arguments)]
+pub fn pass(
+    ctx: &mut Ctx,
+    o: &mut [f32],
+    y: &[f32],
+    pair: Option<Pair<'_>>,
+    counts: &[f32],
+    guides: Guides<'_>,
+    w: usize,
+    h: usize,
+    exposure: f32,
+) -> Result<()> {
+    let n = w * h;
+    if n == 0 {
+        return Ok(());
+    }
+    let e = positive_exposure(exposure);
+    const RUN: usize = 1 << 14;
+    let st = Stops { normal: SIGMA_NORMAL, albedo: SIGMA_ALBEDO, depth: SIGMA_DEPTH };
+    let (_, mut v) = log_and_noise(ctx, y, pair, w, h, e)?;
+    window_means(ctx, &mut v, w, h);
+    let fin = |v: f32| if v.is_finite() { v } else { 0.0 };
+    let isa = ctx.isa;
+    // Planes: colour (3) and residual variance in `a`; albedo (3), normal
+    // (3) and depth in `g`.
+    let mut a = vec![0.0f32; 4 * n];
+    let mut b = vec![0.0f32; 4 * n];
+    let mut g = vec![0.0f32; 7 * n];
+    {
+        let o: &[f32] = o;
+        // (The core's SIMD `log1p`, through `b`.)
+        ctx.pool.planes(vec![&mut b[..3 * n]], RUN, |start, runs| {
+            for (d, &s) in runs[0].iter_mut().zip(&o[start..]) {
+                *d = fin(e * s);
+            }
+        });
+        let (ac, av) = a.split_at_mut(3 * n);
+        tonemap::map::<F32>(isa, Map::Log1p, &View::new(&b[..3 * n], 3, w, h)?, &mut ViewMut::new(ac, 3, w, h)?)?;
+        ctx.pool.planes(vec![av], RUN, |start, runs| {
+            for ((d, &v), &c) in runs[0].iter_mut().zip(&v[start..]).zip(&counts[start..]) {
+                let c = if c.is_finite() { c.max(1.0) } else { 1.0 };
+                *d = GATE * v / c;
+            }
+        });
+        let (ga, gn) = g.split_at_mut(3 * n);
+        let (gn, gz) = gn.split_at_mut(3 * n);
+        let gd = guides;
+        ctx.pool.planes(vec![ga, gn], RUN, |start, runs| {
+            for (k, run) in runs.iter_mut().enumerate() {
+                let src = if k == 0 { gd.albedo } else { gd.normal };
+                for (d, &s) in run.iter_mut().zip(&src[start..]) {
+                    *d = fin(s);
+                }
+            }
+        });
+        ctx.pool.planes(vec![gz], RUN, |start, runs| {
+            for (d, &s) in runs[0].iter_mut().zip(&gd.depth[start..]) {
+                *d = fin(s).max(0.0);
+            }
+        });
+    }
+    drop(v);
+    let inv =
+        Stops { normal: 1.0 / (st.normal * st.normal), albedo: 1.0 / (st.albedo * st.albedo), depth: 1.0 / st.depth };
+    for level in 0..LEVELS {
+        let (src, g) = (&a, &g);
+        let rows: Vec<(usize, &mut [f32])> = b.chunks_mut(w).enumerate().collect();
+        // Row r of plane k is chunk k h + r: one job per row, its four planes.
+        let mut by_row: Vec<Vec<&mut [f32]>> = (0..h).map(|_| Vec::with_capacity(4)).collect();
+        for (r, row) in rows {
+            by_row[r % h].push(row);
+        }
+        ctx.pool.install(|| {
+            use rayon::prelude::*;
+            by_row.into_par_iter().enumerate().with_min_len(4).for_each_init(
+                || vec![0.0f32; 6 * w],
+                |tmp, (y, mut out)| {
+                    #[cfg(target_arch = "x86_64")]
+                    if isa != Isa::Scalar {
+                        // SAFETY: `ctx.isa` is one this CPU has (checked
+                        // when the context was made), AVX2 and FMA at least.
+                        unsafe { step_row_avx2(src, g, &inv, w, h, y, 1 << level, &mut out, tmp) };
+                        return;
+                    }
+                    step_row(src, g, &inv, w, h, y, 1 << level, &mut out, tmp)
+                },
+            );
+        });
+        std::mem::swap(&mut a, &mut b);
+    }
+    tonemap::map::<F32>(
+        isa,
+        Map::Expm1,
+        &View::new(&a[..3 * n], 3, w, h)?,
+        &mut ViewMut::new(&mut b[..3 * n], 3, w, h)?,
+    )?;
+    let b = &b;
+    ctx.pool.planes(o[..3 * n].chunks_mut(n).collect(), RUN, |start, runs| {
+        for (c, run) in runs.iter_mut().enumerate() {
+            for (j, ov) in run.iter_mut().enumerate() {
+                let r = b[c * n + start + j] / e;
+                if r.is_finite() {
+                    *ov = r.max(0.0);
+                }
+            }
+        }
+    });
+    Ok(())
+}
+
+/// `o += w c`, element by element.
+#[inline(always)]
+fn axpy(o: &mut [f32], w: &[f32], c: &[f32]) {
+    for ((o, &w), &c) in o.iter_mut().zip(w).zip(c) {
+        *o += w * c;
+    }
+}
+
+/// A tap's weights `wt = hw exp(-t)` over a run of pixels (see the
+/// module): `g` the guides at the pixels and at their taps (albedo 3,
+/// normal 3, depth; then the same at the taps), `c` the colour and
+/// residual variance at both.
+#[inline(always)]
+fn weights(wt: &mut [f32], g: [&[f32]; 14], c: [&[f32]; 8], inv: &Stops, zs: f32, hw: f32) {
+    let len = wt.len();
+    assert!(g.iter().chain(c.iter()).all(|v| v.len() == len));
+    let [pa0, pa1, pa2, pn0, pn1, pn2, pz, qa0, qa1, qa2, qn0, qn1, qn2, qz] = g;
+    let [pc0, pc1, pc2, pv, qc0, qc1, qc2, qv] = c;
+    let sq3 = |a: f32, b: f32, c: f32| a * a + b * b + c * c;
+    for (i, w) in wt.iter_mut().enumerate() {
+        let dn = sq3(pn0[i] - qn0[i], pn1[i] - qn1[i], pn2[i] - qn2[i]);
+        let da = sq3(pa0[i] - qa0[i], pa1[i] - qa1[i], pa2[i] - qa2[i]);
+        let dc = sq3(pc0[i] - qc0[i], pc1[i] - qc1[i], pc2[i] - qc2[i]);
+        let t = dn * inv.normal
+            + da * inv.albedo
+            + (pz[i] - qz[i]).abs() * zs / pz[i].max(1e-3)
+            + dc / (pv[i] + qv[i] + 1e-12);
+        *w = hw * mcdenoise_core::exp_select(-t);
+    }
+}
+
+/// [`step_row`] compiled for AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn step_row_avx2(
+    src: &[f32],
+    g: &[f32],
+    inv: &Stops,
+    w: usize,
+    h: usize,
+    y: usize,
+    s: usize,
+    out: &mut [&mut [f32]],
+    tmp: &mut [f32],
+) {
+    step_row(src, g, inv, w, h, y, s, out, tmp)
+}
+
+/// The 3-tap B-spline of one à-trous step.
+const TAPS: [f32; 3] = [0.25, 0.5, 0.25];
+
+/// One à-trous step of row `y` (holes `s` pixels apart) from the planes
+/// `src` (colour, residual variance) into `out` (the row of each of the 4
+/// planes), guided by the planes `g` (albedo, normal, depth); `inv` holds
+/// the stops' inverse squares (the depth's inverse). Tap by tap over the
+/// whole row, so that the loop over the pixels vectorises; `tmp` holds 6
+/// rows.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn step_row(
+    src: &[f32],
+    g: &[f32],
+    inv: &Stops,
+    w: usize,
+    h: usize,
+    y: usize,
+    s: usize,
+    out: &mut [&mut [f32]],
+    tmp: &mut [f32],
+) {
+    let n = w * h;
+    fn sub(v: &[f32], at: usize, len: usize) -> &[f32] {
+        &v[at..at + len]
+    }
+    let row = |_: &[f32], k: usize, yy: usize| k * n + yy * w;
+    let (acc, rest) = tmp.split_at_mut(3 * w);
+    let (ws, rest) = rest.split_at_mut(w);
+    let (vs, wrow) = rest.split_at_mut(w);
+    acc.fill(0.0);
+    ws.fill(0.0);
+    vs.fill(0.0);
+    let zs = inv.depth / s as f32;
+    let (cp0, cp1, cp2, vp) = (
+        sub(src, row(src, 0, y), w),
+        sub(src, row(src, 1, y), w),
+        sub(src, row(src, 2, y), w),
+        sub(src, row(src, 3, y), w),
+    );
+    let gp: [&[f32]; 7] = core::array::from_fn(|k| sub(g, row(g, k, y), w));
+    for (dy, &hy) in TAPS.iter().enumerate() {
+        let qy = y as isize + (dy as isize - 1) * s as isize;
+        if qy < 0 || qy >= h as isize {
+            continue;
+        }
+        let qy = qy as usize;
+        let (cq0, cq1, cq2, vq) = (
+            sub(src, row(src, 0, qy), w),
+            sub(src, row(src, 1, qy), w),
+            sub(src, row(src, 2, qy), w),
+            sub(src, row(src, 3, qy), w),
+        );
+        let gq: [&[f32]; 7] = core::array::from_fn(|k| sub(g, row(g, k, qy), w));
+        for (dx, &hx) in TAPS.iter().enumerate() {
+            let off = (dx as isize - 1) * s as isize;
+            // The pixels x whose tap x + off is inside the row.
+            let x0 = (-off).max(0) as usize;
+            let x1 = (w as isize - off.max(0)).max(0) as usize;
+            if x0 >= x1 {
+                continue;
+            }
+            let q0 = (x0 as isize + off) as usize;
+            let len = x1 - x0;
+            let hw = hy * hx;
+            let (a0, a12) = acc.split_at_mut(w);
+            let (a1, a2) = a12.split_at_mut(w);
+            if dy == 1 && dx == 1 {
+                for x in x0..x1 {
+                    a0[x] += hw * cp0[x];
+                    a1[x] += hw * cp1[x];
+                    a2[x] += hw * cp2[x];
+                    ws[x] += hw;
+                    vs[x] += hw * hw * vp[x];
+                }
+                continue;
+            }
+            let (pa0, pa1, pa2, pn0, pn1, pn2, pz) = (
+                sub(gp[0], x0, len),
+                sub(gp[1], x0, len),
+                sub(gp[2], x0, len),
+                sub(gp[3], x0, len),
+                sub(gp[4], x0, len),
+                sub(gp[5], x0, len),
+                sub(gp[6], x0, len),
+            );
+            let (qa0, qa1, qa2, qn0, qn1, qn2, qz) = (
+                sub(gq[0], q0, len),
+                sub(gq[1], q0, len),
+                sub(gq[2], q0, len),
+                sub(gq[3], q0, len),
+                sub(gq[4], q0, len),
+                sub(gq[5], q0, len),
+                sub(gq[6], q0, len),
+            );
+            let (pc0, pc1, pc2, pv) = (sub(cp0, x0, len), sub(cp1, x0, len), sub(cp2, x0, len), sub(vp, x0, len));
+            let (qc0, qc1, qc2, qv) = (sub(cq0, q0, len), sub(cq1, q0, len), sub(cq2, q0, len), sub(vq, q0, len));
+            let (o0, o1, o2, ow, ov) =
+                (&mut a0[x0..x1], &mut a1[x0..x1], &mut a2[x0..x1], &mut ws[x0..x1], &mut vs[x0..x1]);
+            let wt = &mut wrow[..len];
+            weights(
+                wt,
+                [pa0, pa1, pa2, pn0, pn1, pn2, pz, qa0, qa1, qa2, qn0, qn1, qn2, qz],
+                [pc0, pc1, pc2, pv, qc0, qc1, qc2, qv],
+                inv,
+                zs,
+                hw,
+            );
+            axpy(o0, wt, qc0);
+            axpy(o1, wt, qc1);
+            axpy(o2, wt, qc2);
+            for (o, &w) in ow.iter_mut().zip(wt.iter()) {
+                *o += w;
+            }
+            for ((o, &w), &v) in ov.iter_mut().zip(wt.iter()).zip(qv) {
+                *o += w * w * v;
+            }
+        }
+    }
+    // (The centre's weight, 1/4, keeps ws > 0.)
+    for x in 0..w {
+        let r = 1.0 / ws[x];
+        out[0][x] = acc[x] * r;
+        out[1][x] = acc[w + x] * r;
+        out[2][x] = acc[2 * w + x] * r;
+        out[3][x] = vs[x] * r * r;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::methods::test_noise::lcg;
+
+    /// One step of the pass at pixel `(x, y)` straight from its
+    /// definition, in f64: the 3x3 B-spline taps `s` pixels apart inside the
+    /// image, each weighted by `exp(-t)` of the guides' and the colours'
+    /// differences (the centre by its tap alone); the colour and the
+    /// variance (squared normalised weights) out.
+    #[allow(clippy::too_many_arguments)]
+    fn oracle(src: &[f32], g: &[f32], st: &Stops, w: usize, h: usize, x: usize, y: usize, s: usize) -> [f64; 4] {
+        let n = w * h;
+        let at = |v: &[f32], k: usize, p: usize| v[k * n + p] as f64;
+        let p = y * w + x;
+        let (mut acc, mut ws, mut vs) = ([0.0f64; 3], 0.0f64, 0.0f64);
+        for dy in -1i64..=1 {
+            for dx in -1i64..=1 {
+                let (qx, qy) = (x as i64 + dx * s as i64, y as i64 + dy * s as i64);
+                if qx < 0 || qy < 0 || qx >= w as i64 || qy >= h as i64 {
+                    continue;
+                }
+                let q = qy as usize * w + qx as usize;
+                let tap = [0.25, 0.5, 0.25][(dy + 1) as usize] * [0.25, 0.5, 0.25][(dx + 1) as usize];
+                let mut wt = tap;
+                if q != p {
+                    let d2 =
+                        |k0: usize, v: &[f32]| (k0..k0 + 3).map(|k| (at(v, k, p) - at(v, k, q)).powi(2)).sum::<f64>();
+                    let t = d2(3, g) / (st.normal as f64).powi(2)
+                        + d2(0, g) / (st.albedo as f64).powi(2)
+                        + (at(g, 6, p) - at(g, 6, q)).abs() / (st.depth as f64 * s as f64 * at(g, 6, p).max(1e-3))
+                        + d2(0, src) / (at(src, 3, p) + at(src, 3, q) + 1e-12);
+                    wt *= (-t).exp();
+                }
+                for (k, a) in acc.iter_mut().enumerate() {
+                    *a += wt * at(src, k, q);
+                }
+                ws += wt;
+                vs += wt * wt * at(src, 3, q);
+            }
+        }
+        [acc[0] / ws, acc[1] / ws, acc[2] / ws, vs / (ws * ws)]
+    }
+
+    /// Every row of a step through [`step_row`] (and its AVX2 build where
+    /// this CPU has it) against the f64 oracle, at holes 1, 2 and 4 on a
+    /// small random image whose guides differ from pixel to pixel by about
+    /// their stops (so that the weights spread over their range).
+    #[test]
+    fn a_step_matches_an_f64_oracle() {
+        let (w, h) = (19, 13);
+        let n = w * h;
+        let mut s = 7u32;
+        let mut src: Vec<f32> = (0..4 * n).map(|_| lcg(&mut s)).collect();
+        for v in &mut src[3 * n..] {
+            *v = 0.05 + 0.2 * *v;
+        }
+        let mut g: Vec<f32> = (0..7 * n).map(|_| lcg(&mut s) * 0.3).collect();
+        for v in &mut g[6 * n..] {
+            *v += 1.0;
+        }
+        let st = Stops { normal: SIGMA_NORMAL, albedo: SIGMA_ALBEDO, depth: SIGMA_DEPTH };
+        let inv = Stops {
+            normal: 1.0 / (st.normal * st.normal),
+            albedo: 1.0 / (st.albedo * st.albedo),
+            depth: 1.0 / st.depth,
+        };
+        let mut paths: Vec<bool> = vec![false];
+        if cfg!(target_arch = "x86_64") && Isa::Avx2.check().is_ok() {
+            paths.push(true);
+        }
+        let mut spread = (f64::MAX, 0.0f64);
+        for avx2 in paths {
+            for s in [1usize, 2, 4] {
+                let mut out = vec![0.0f32; 4 * w];
+                let mut tmp = vec![0.0f32; 6 * w];
+                for y in 0..h {
+                    let mut rows: Vec<&mut [f32]> = out.chunks_mut(w).collect();
+                    #[cfg(target_arch = "x86_64")]
+                    if avx2 {
+                        // SAFETY: checked above that this CPU has AVX2 (and FMA).
+                        unsafe { step_row_avx2(&src, &g, &inv, w, h, y, s, &mut rows, &mut tmp) };
+                    } else {
+                        step_row(&src, &g, &inv, w, h, y, s, &mut rows, &mut tmp);
+                    }
+                    #[cfg(not(target_arch = "x86_64"))]
+                    step_row(&src, &g, &inv, w, h, y, s, &mut rows, &mut tmp);
+                    for x in 0..w {
+                        let want = oracle(&src, &g, &st, w, h, x, y, s);
+                        for k in 0..4 {
+                            let got = out[k * w + x] as f64;
+                            assert!(
+                                (got - want[k]).abs() <= 2e-5 * want[k].abs().max(1e-2),
+                                "avx2 {avx2}, hole {s}, pixel ({x}, {y}), plane {k}: {got} against {}",
+                                want[k]
+                            );
+                        }
+                        // How far the step moved the pixel: the weights are not all 0 or 1.
+                        let moved = (want[0] - src[y * w + x] as f64).abs();
+                        spread = (spread.0.min(moved), spread.1.max(moved));
+                    }
+                }
+            }
+        }
+        assert!(spread.1 > 0.05 && spread.0 < 0.01, "the test's weights spread: {spread:?}");
+    }
+
+    /// A scene of two walls meeting at a vertical edge (other normal, other
+    /// albedo, other shading): the output carries 10 % blotches (a smooth
+    /// random field), the input 1-spp noise. Returns (output, input,
+    /// albedo, normal, depth, the output's blotch field).
+    #[allow(clippy::type_complexity)]
+    fn two_walls(w: usize, h: usize) -> (Vec<f32>, Vec<f32>, Vec<f32>, Vec<f32>, Vec<f32>) {
+        let n = w * h;
+        let mut s = 99u32;
+        let left = |i: usize| (i % w) < w / 2;
+        // Blotches: white noise box-filtered twice over 5x5, scaled to +-10 %.
+        let mut f: Vec<f32> = (0..n).map(|_| lcg(&mut s) - 0.5).collect();
+        for _ in 0..2 {
+            crate::methods::features::box_sum(&mut f, w, h, 2);
+        }
+        let m = f.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        let base = |i: usize| if left(i) { 0.5 } else { 0.2 };
+        let o: Vec<f32> = (0..3 * n).map(|k| base(k % n) * (1.0 + 0.1 * f[k % n] / m)).collect();
+        let y: Vec<f32> = (0..3 * n).map(|k| base(k % n) * 2.0 * lcg(&mut s)).collect();
+        let albedo: Vec<f32> = (0..3 * n).map(|k| if left(k % n) { 0.7 } else { 0.3 }).collect();
+        let normal: Vec<f32> = (0..3 * n)
+            .map(|k| match (k / n, left(k % n)) {
+                (2, true) | (0, false) => 1.0,
+                _ => 0.0,
+            })
+            .collect();
+        let depth = vec![2.0f32; n];
+        (o, y, albedo, normal, depth)
+    }
+
+    /// Standard deviation of `log(v)` over the pixels `keep` selects (plane 0).
+    fn log_sd(v: &[f32], keep: impl Fn(usize) -> bool, n: usize) -> f64 {
+        let l: Vec<f64> = (0..n).filter(|&i| keep(i)).map(|i| (v[i] as f64).ln()).collect();
+        let m = l.iter().sum::<f64>() / l.len() as f64;
+        (l.iter().map(|x| (x - m).powi(2)).sum::<f64>() / l.len() as f64).sqrt()
+    }
+
+    /// Without history the blotches on each wall shrink by more than a quarter
+    /// while the edge between the walls stays where it was (each wall's
+    /// column beside it keeps its level within 2 %); with a long history
+    /// the output moves by under 1.5 % (and a quarter of what it moves
+    /// without); scaling the frame by `k` (and the
+    /// exposure by `1 / k`) scales the result by `k`.
+    #[test]
+    fn blotches_without_history_go_and_an_edge_stays() {
+        let mut ctx = crate::methods::context(&crate::methods::Settings::default()).unwrap();
+        let (w, h) = (48, 32);
+        let n = w * h;
+        let (o, y, albedo, normal, depth) = two_walls(w, h);
+        let guides = Guides { albedo: &albedo, normal: &normal, depth: &depth };
+        let walls = [4..w / 2 - 4, w / 2 + 4..w - 4];
+        let run = |ctx: &mut Ctx, o: &[f32], y: &[f32], count: f32, e: f32| {
+            let mut r = o.to_vec();
+            pass(ctx, &mut r, y, None, &vec![count; n], guides, w, h, e).unwrap();
+            r
+        };
+        let short = run(&mut ctx, &o, &y, 1.0, 1.0);
+        for (k, wall) in walls.iter().enumerate() {
+            let inside = |i: usize| wall.contains(&(i % w));
+            let (before, after) = (log_sd(&o, inside, n), log_sd(&short, inside, n));
+            assert!(after < 0.75 * before, "wall {k}'s blotches: log sd {before:.4} -> {after:.4}");
+        }
+        for (x, level) in [(w / 2 - 1, 0.5f64), (w / 2, 0.2)] {
+            let col: f64 = (0..h).map(|yy| short[yy * w + x] as f64).sum::<f64>() / h as f64;
+            let was: f64 = (0..h).map(|yy| o[yy * w + x] as f64).sum::<f64>() / h as f64;
+            assert!((col / was - 1.0).abs() < 0.02, "column {x} beside the edge: {was} -> {col} (level {level})");
+        }
+        let long = run(&mut ctx, &o, &y, 1e4, 1.0);
+        let moved = |r: &[f32]| r.iter().zip(&o).map(|(a, b)| (a / b - 1.0).abs()).fold(0.0f32, f32::max);
+        let (worst, without) = (moved(&long), moved(&short));
+        assert!(worst < 0.015 && worst < without / 4.0, "a long history: moved by {worst} (without: {without})");
+        for k in [1.0f32 / 64.0, 64.0] {
+            let (ok, yk): (Vec<f32>, Vec<f32>) = (o.iter().map(|v| v * k).collect(), y.iter().map(|v| v * k).collect());
+            let scaled = run(&mut ctx, &ok, &yk, 1.0, 1.0 / k);
+            let worst = scaled.iter().zip(&short).map(|(a, b)| (a / (k * b) - 1.0).abs()).fold(0.0f32, f32::max);
+            assert!(worst < 1e-4, "scaled by {k}: off by {worst}");
+        }
+    }
+}
