@@ -92,9 +92,12 @@ fn afn_streamed_inference_equals_its_training_forward() {
         // temporal accumulation is the frame).
         let settings = mcdenoise::methods::Settings { threads: 2, ..Default::default() };
         let mut ctx = mcdenoise::methods::context(&settings).unwrap();
-        // (Without the fallback to the input, which only inference has.)
-        let mut den =
-            afn::Afn::<F32>::from_params(&f, (kp.clone(), rp.clone()), true, variant).unwrap().with_fallback(false);
+        // (Without the wide pass and the fallback to the input, which only
+        // inference has.)
+        let mut den = afn::Afn::<F32>::from_params(&f, (kp.clone(), rp.clone()), true, variant)
+            .unwrap()
+            .with_fallback(false)
+            .with_wide(false);
         let out = den.denoise(&f, &mut ctx, &mut Timings::default()).unwrap();
         // Training: the same frame as one crop through the training head.
         let pool = Pool::new(2).unwrap();
