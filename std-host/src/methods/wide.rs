@@ -10,8 +10,12 @@
 //! once more: [`LEVELS`] à-trous steps of the 3-tap B-spline
 //! `(1/4, 1/2, 1/4)` (holes 1, 2 and 4 pixels apart, a 15x15 reach), each
 //! tap weighted by `exp(-t)`,
-//! `t = |n_p - n_q|^2 / s_n^2 + |a_p - a_q|^2 / s_a^2
-//!    + |z_p - z_q| / (s_z hole z_p) + |c_p - c_q|^2 / (v_p + v_q)`,
+//!
+//! ```text
+//! t = |n_p - n_q|^2 / s_n^2 + |a_p - a_q|^2 / s_a^2
+//!     + |z_p - z_q| / (s_z hole z_p) + |c_p - c_q|^2 / (v_p + v_q)
+//! ```
+//!
 //! with `n` the normal, `a` the albedo, `z` the depth, `c` the output's
 //! colour and `v` its residual noise variance. `v` starts as [`GATE`] times
 //! the input's noise variance (its 7x7 window mean; from the pair where the
@@ -204,26 +208,40 @@ pub fn pass(
     Ok(())
 }
 
-/// `o += w c`, element by element.
+/// One tap over a run of pixels: its weights `wt = hw exp(-t)` (see the
+/// module) from `g`, the guides at the pixels and at their taps (albedo 3,
+/// normal 3, depth; then the same at the taps), and `c`, the colour and
+/// residual variance at both; added into `out` (the colour's 3 sums, the
+/// weights' sum, the squared weights' sum with the variance).
 #[inline(always)]
-fn axpy(o: &mut [f32], w: &[f32], c: &[f32]) {
-    for ((o, &w), &c) in o.iter_mut().zip(w).zip(c) {
-        *o += w * c;
-    }
+fn tap(out: [&mut [f32]; 5], g: [&[f32]; 14], c: [&[f32]; 8], inv: &Stops, zs: f32, hw: f32) {
+    let [o0, o1, o2, ow, ov] = out;
+    tap_into(o0, o1, o2, ow, ov, g, c, inv, zs, hw)
 }
 
-/// A tap's weights `wt = hw exp(-t)` over a run of pixels (see the
-/// module): `g` the guides at the pixels and at their taps (albedo 3,
-/// normal 3, depth; then the same at the taps), `c` the colour and
-/// residual variance at both.
+/// [`tap`] with its outputs as separate references, which the compiler
+/// knows do not overlap, so that the loop vectorises.
 #[inline(always)]
-fn weights(wt: &mut [f32], g: [&[f32]; 14], c: [&[f32]; 8], inv: &Stops, zs: f32, hw: f32) {
-    let len = wt.len();
+#[allow(clippy::too_many_arguments)]
+fn tap_into(
+    o0: &mut [f32],
+    o1: &mut [f32],
+    o2: &mut [f32],
+    ow: &mut [f32],
+    ov: &mut [f32],
+    g: [&[f32]; 14],
+    c: [&[f32]; 8],
+    inv: &Stops,
+    zs: f32,
+    hw: f32,
+) {
+    let len = o0.len();
     assert!(g.iter().chain(c.iter()).all(|v| v.len() == len));
+    assert!(o1.len() == len && o2.len() == len && ow.len() == len && ov.len() == len);
     let [pa0, pa1, pa2, pn0, pn1, pn2, pz, qa0, qa1, qa2, qn0, qn1, qn2, qz] = g;
     let [pc0, pc1, pc2, pv, qc0, qc1, qc2, qv] = c;
     let sq3 = |a: f32, b: f32, c: f32| a * a + b * b + c * c;
-    for (i, w) in wt.iter_mut().enumerate() {
+    for i in 0..len {
         let dn = sq3(pn0[i] - qn0[i], pn1[i] - qn1[i], pn2[i] - qn2[i]);
         let da = sq3(pa0[i] - qa0[i], pa1[i] - qa1[i], pa2[i] - qa2[i]);
         let dc = sq3(pc0[i] - qc0[i], pc1[i] - qc1[i], pc2[i] - qc2[i]);
@@ -231,7 +249,12 @@ fn weights(wt: &mut [f32], g: [&[f32]; 14], c: [&[f32]; 8], inv: &Stops, zs: f32
             + da * inv.albedo
             + (pz[i] - qz[i]).abs() * zs / pz[i].max(1e-3)
             + dc / (pv[i] + qv[i] + 1e-12);
-        *w = hw * mcdenoise_core::exp_select(-t);
+        let wt = hw * mcdenoise_core::exp_select(-t);
+        o0[i] += wt * qc0[i];
+        o1[i] += wt * qc1[i];
+        o2[i] += wt * qc2[i];
+        ow[i] += wt;
+        ov[i] += wt * wt * qv[i];
     }
 }
 
@@ -282,7 +305,7 @@ fn step_row(
     let row = |_: &[f32], k: usize, yy: usize| k * n + yy * w;
     let (acc, rest) = tmp.split_at_mut(3 * w);
     let (ws, rest) = rest.split_at_mut(w);
-    let (vs, wrow) = rest.split_at_mut(w);
+    let vs = &mut rest[..w];
     acc.fill(0.0);
     ws.fill(0.0);
     vs.fill(0.0);
@@ -352,24 +375,14 @@ fn step_row(
             let (qc0, qc1, qc2, qv) = (sub(cq0, q0, len), sub(cq1, q0, len), sub(cq2, q0, len), sub(vq, q0, len));
             let (o0, o1, o2, ow, ov) =
                 (&mut a0[x0..x1], &mut a1[x0..x1], &mut a2[x0..x1], &mut ws[x0..x1], &mut vs[x0..x1]);
-            let wt = &mut wrow[..len];
-            weights(
-                wt,
+            tap(
+                [o0, o1, o2, ow, ov],
                 [pa0, pa1, pa2, pn0, pn1, pn2, pz, qa0, qa1, qa2, qn0, qn1, qn2, qz],
                 [pc0, pc1, pc2, pv, qc0, qc1, qc2, qv],
                 inv,
                 zs,
                 hw,
             );
-            axpy(o0, wt, qc0);
-            axpy(o1, wt, qc1);
-            axpy(o2, wt, qc2);
-            for (o, &w) in ow.iter_mut().zip(wt.iter()) {
-                *o += w;
-            }
-            for ((o, &w), &v) in ov.iter_mut().zip(wt.iter()).zip(qv) {
-                *o += w * w * v;
-            }
         }
     }
     // (The centre's weight, 1/4, keeps ws > 0.)
