@@ -57,8 +57,20 @@ pub const SIGMA_DEPTH: f32 = 0.02;
 pub const STAGE: &str = "wide pass (à-trous over the output where the history is short)";
 
 /// Bytes per pixel [`pass`] allocates for the time it runs (at its peak:
-/// the noise, two copies of the colour and variance, the guides).
-pub const TEMP_BYTES: u64 = 4 * 16;
+/// the input's log and its noise).
+pub const TEMP_BYTES: u64 = 4 * 7;
+/// Bytes per pixel of [`Buffers`], kept from frame to frame: two copies of
+/// the colour and variance, the guides.
+pub const KEPT_BYTES: u64 = 4 * 15;
+
+/// The pass's buffers, kept from frame to frame (a frame's worth of fresh
+/// pages each frame costs their page faults).
+#[derive(Debug, Default)]
+pub struct Buffers {
+    a: Vec<f32>,
+    b: Vec<f32>,
+    g: Vec<f32>,
+}
 
 /// Records the stage in a method's plan: built, or skipped by
 /// `--no-wide-pass` (replacing an earlier entry of either kind).
@@ -101,6 +113,7 @@ struct Stops {
 #[allow(clippy::too_many_arguments)]
 pub fn pass(
     ctx: &mut Ctx,
+    bufs: &mut Buffers,
     o: &mut [f32],
     y: &[f32],
     pair: Option<Pair<'_>>,
@@ -123,9 +136,12 @@ pub fn pass(
     let isa = ctx.isa;
     // Planes: colour (3) and residual variance in `a`; albedo (3), normal
     // (3) and depth in `g`.
-    let mut a = vec![0.0f32; 4 * n];
-    let mut b = vec![0.0f32; 4 * n];
-    let mut g = vec![0.0f32; 7 * n];
+    // (Every value of the three is written below before it is read.)
+    bufs.a.resize(4 * n, 0.0);
+    bufs.b.resize(4 * n, 0.0);
+    bufs.g.resize(7 * n, 0.0);
+    let Buffers { a, b, g } = bufs;
+    let (mut a, mut b) = (a, b);
     {
         let o: &[f32] = o;
         // (The core's SIMD `log1p`, through `b`.)
@@ -163,7 +179,7 @@ pub fn pass(
     let inv =
         Stops { normal: 1.0 / (st.normal * st.normal), albedo: 1.0 / (st.albedo * st.albedo), depth: 1.0 / st.depth };
     for level in 0..LEVELS {
-        let (src, g) = (&a, &g);
+        let (src, g): (&[f32], &[f32]) = (a, g);
         let rows: Vec<(usize, &mut [f32])> = b.chunks_mut(w).enumerate().collect();
         // Row r of plane k is chunk k h + r: one job per row, its four planes.
         let mut by_row: Vec<Vec<&mut [f32]>> = (0..h).map(|_| Vec::with_capacity(4)).collect();
@@ -194,7 +210,7 @@ pub fn pass(
         &View::new(&a[..3 * n], 3, w, h)?,
         &mut ViewMut::new(&mut b[..3 * n], 3, w, h)?,
     )?;
-    let b = &b;
+    let b: &[f32] = b;
     ctx.pool.planes(o[..3 * n].chunks_mut(n).collect(), RUN, |start, runs| {
         for (c, run) in runs.iter_mut().enumerate() {
             for (j, ov) in run.iter_mut().enumerate() {
@@ -554,7 +570,7 @@ mod tests {
         let walls = [4..w / 2 - 4, w / 2 + 4..w - 4];
         let run = |ctx: &mut Ctx, o: &[f32], y: &[f32], count: f32, e: f32| {
             let mut r = o.to_vec();
-            pass(ctx, &mut r, y, None, &vec![count; n], guides, w, h, e).unwrap();
+            pass(ctx, &mut Buffers::default(), &mut r, y, None, &vec![count; n], guides, w, h, e).unwrap();
             r
         };
         let short = run(&mut ctx, &o, &y, 1.0, 1.0);

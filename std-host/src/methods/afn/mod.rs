@@ -457,6 +457,8 @@ pub struct Afn<P: HostPrecision> {
     int8: bool,
     /// With the wide pass ([`crate::methods::wide`]).
     wide: bool,
+    /// The wide pass's buffers.
+    wide_bufs: crate::methods::wide::Buffers,
 }
 
 /// The networks ready to run in `P`: the kernel predictor without its
@@ -566,14 +568,16 @@ impl<P: HostPrecision> Afn<P> {
         let k1 = (TAPS as u64 * s).div_ceil(4);
         // After the networks ran: kernels, c1 ct, d1 f1, fused; i decoded;
         // refinement input, output, r decoded.
-        let tail = |l: &mut crate::runtime::memory::Ledger| {
+        let wide_kept = if wide { crate::methods::wide::KEPT_BYTES } else { 0 };
+        let tail = |l: &mut crate::runtime::memory::Ledger, wide_first: u64| {
             l.alloc(k1).alloc(6 * s).alloc((6 * s).div_ceil(4)).alloc(3 * s);
             l.alloc(12).free(3 * s);
             l.alloc(4 * RIN as u64 + RIN as u64 * s).alloc(12).temp(12);
-            // The wide pass (and the history counts it reads, decoded
-            // at the start of the frame), then the fallback to the input.
+            // The wide pass (its buffers kept, allocated on the first
+            // frame; the history counts it reads were decoded at the start
+            // of the frame), then the fallback to the input.
             if wide {
-                l.temp(crate::methods::wide::TEMP_BYTES);
+                l.alloc(wide_first).temp(crate::methods::wide::TEMP_BYTES);
             }
             l.temp(crate::methods::fallback::TEMP_BYTES);
         };
@@ -591,14 +595,14 @@ impl<P: HostPrecision> Afn<P> {
             );
         }
         first.alloc(CIN as u64 * s).alloc(body + refine_net);
-        tail(&mut first);
+        tail(&mut first, wide_kept);
         // Every later frame: what the frame before kept, then the
         // accumulation's step on top of it and the rest of the frame.
         let mut later = crate::runtime::memory::Ledger::default();
-        later.alloc(bufs + CIN as u64 * s + body + refine_net);
+        later.alloc(bufs + CIN as u64 * s + body + refine_net + wide_kept);
         TemporalAccumulation::<P>::step_ledger(info, &mut later);
         later.alloc(12 + 4 * u64::from(wide));
-        tail(&mut later);
+        tail(&mut later, 0);
         let w = info.width;
         let sl = stream_scratch_len::<P>(w, STREAM_ROWS).max(unfold::scratch_len::<P>(K, 3, w));
         let whole = if whole_maps {
@@ -607,7 +611,7 @@ impl<P: HostPrecision> Afn<P> {
             0
         };
         crate::runtime::memory::Footprint {
-            kept: history + 12 + bufs + CIN as u64 * s + body + refine_net,
+            kept: history + 12 + bufs + CIN as u64 * s + body + refine_net + wide_kept,
             peak: first.peak().max(later.peak()) + whole,
             scratch: 4 * threads as u64 * sl as u64,
         }
@@ -651,6 +655,7 @@ impl<P: HostPrecision> Afn<P> {
             fallback: true,
             int8: false,
             wide: true,
+            wide_bufs: Default::default(),
         })
     }
 
@@ -857,7 +862,18 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
                 depth: f.require(Buffer::Depth, "afn")?,
             };
             t.time("wide pass", || {
-                crate::methods::wide::pass(ctx, &mut out, colour, f.pair(), &counts, guides, w, h, e)
+                crate::methods::wide::pass(
+                    ctx,
+                    &mut self.wide_bufs,
+                    &mut out,
+                    colour,
+                    f.pair(),
+                    &counts,
+                    guides,
+                    w,
+                    h,
+                    e,
+                )
             })?;
         }
         if self.fallback {

@@ -377,6 +377,8 @@ struct Bufs {
     keep: Vec<f32>,
     /// The history counts in f32 (for the wide pass).
     counts: Vec<f32>,
+    /// The wide pass's buffers.
+    wide: crate::methods::wide::Buffers,
 }
 
 impl Bufs {
@@ -389,6 +391,7 @@ impl Bufs {
             ex: vec![0.0; 3 * n],
             keep: Vec::new(),
             counts: vec![0.0; n],
+            wide: Default::default(),
         }
     }
 }
@@ -446,14 +449,16 @@ impl<P: HostPrecision> Wskp<P> {
         // Another layer count is refused when the method is built.
         let network = net_for(if layers == 3 { 3 } else { 6 }, Sizes::ALL_AND_INPUT).expect("3 or 6 layers");
         let net = crate::nn::infer::held_bytes_per_pixel(&network, s);
-        let output = |l: &mut crate::runtime::memory::Ledger| {
+        let wide_kept = if wide { crate::methods::wide::KEPT_BYTES } else { 0 };
+        let output = |l: &mut crate::runtime::memory::Ledger, wide_first: u64| {
             l.alloc(12);
             if !f32s {
                 l.temp(3 * s);
             }
-            // The wide pass, then the fallback to the input.
+            // The wide pass (its buffers kept, allocated on the first
+            // frame), then the fallback to the input.
             if wide {
-                l.temp(crate::methods::wide::TEMP_BYTES);
+                l.alloc(wide_first).temp(crate::methods::wide::TEMP_BYTES);
             }
             l.temp(crate::methods::fallback::TEMP_BYTES);
         };
@@ -464,16 +469,16 @@ impl<P: HostPrecision> Wskp<P> {
             first.temp(crate::nn::infer::ranges_bytes_per_pixel(&network));
         }
         first.alloc(stored + net);
-        output(&mut first);
+        output(&mut first, wide_kept);
         let mut later = crate::runtime::memory::Ledger::default();
-        later.alloc(bufs + stored + net);
+        later.alloc(bufs + stored + net + wide_kept);
         TemporalAccumulation::<P>::step_ledger(info, &mut later);
-        output(&mut later);
+        output(&mut later, 0);
         let w = info.width;
         let sl = softmax::fused_scratch_len::<P>(WindowPath::Separable, &SIZES, 3, w)
             .max(mcdenoise_core::conv::conv2d_scratch_len::<P>(5, 14, 14, w));
         crate::runtime::memory::Footprint {
-            kept: history + bufs + stored + net,
+            kept: history + bufs + stored + net + wide_kept,
             peak: first.peak().max(later.peak()),
             scratch: 4 * threads as u64 * sl as u64,
         }
@@ -679,7 +684,18 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
                 depth: f.require(Buffer::Depth, "wskp")?,
             };
             t.time("wide pass", || {
-                crate::methods::wide::pass(ctx, &mut out, colour, f.pair(), &bufs.counts, guides, w, h, exposure)
+                crate::methods::wide::pass(
+                    ctx,
+                    &mut bufs.wide,
+                    &mut out,
+                    colour,
+                    f.pair(),
+                    &bufs.counts,
+                    guides,
+                    w,
+                    h,
+                    exposure,
+                )
             })?;
         }
         if self.fallback {
