@@ -191,19 +191,16 @@ pub fn pass(
         }
         ctx.pool.install(|| {
             use rayon::prelude::*;
-            by_row.into_par_iter().enumerate().with_min_len(4).for_each_init(
-                || vec![0.0f32; 6 * w],
-                |tmp, (y, mut out)| {
-                    #[cfg(target_arch = "x86_64")]
-                    if isa != Isa::Scalar {
-                        // SAFETY: `ctx.isa` is one this CPU has (checked
-                        // when the context was made), AVX2 and FMA at least.
-                        unsafe { step_row_avx2(src, g, &inv, w, h, y, 1 << level, &mut out, tmp) };
-                        return;
-                    }
-                    step_row(src, g, &inv, w, h, y, 1 << level, &mut out, tmp)
-                },
-            );
+            by_row.into_par_iter().enumerate().with_min_len(4).for_each(|(y, mut out)| {
+                #[cfg(target_arch = "x86_64")]
+                if isa != Isa::Scalar {
+                    // SAFETY: `ctx.isa` is one this CPU has (checked
+                    // when the context was made), AVX2 and FMA at least.
+                    unsafe { step_row_avx2(src, g, &inv, w, h, y, 1 << level, &mut out) };
+                    return;
+                }
+                step_row(src, g, &inv, w, h, y, 1 << level, &mut out)
+            });
         });
         std::mem::swap(&mut a, &mut b);
     }
@@ -227,53 +224,113 @@ pub fn pass(
     Ok(())
 }
 
-/// One tap over a run of pixels: its weights `wt = hw exp(-t)` (see the
-/// module) from `g`, the guides at the pixels and at their taps (albedo 3,
-/// normal 3, depth; then the same at the taps), and `c`, the colour and
-/// residual variance at both; added into `out` (the colour's 3 sums, the
-/// weights' sum, the squared weights' sum with the variance).
-#[inline(always)]
-fn tap(out: [&mut [f32]; 5], g: [&[f32]; 14], c: [&[f32]; 8], inv: &Stops, zs: f32, hw: f32) {
-    let [o0, o1, o2, ow, ov] = out;
-    tap_into(o0, o1, o2, ow, ov, g, c, inv, zs, hw)
-}
+/// Pixels a block of [`step_row`] holds in registers.
+const LANES: usize = 8;
 
-/// [`tap`] with its outputs as separate references, which the compiler
-/// knows do not overlap, so that the loop vectorises.
-#[inline(always)]
+/// One à-trous step of row `y` (holes `s` pixels apart) from the planes
+/// `src` (colour, residual variance) into `out` (the row of each of the 4
+/// planes), guided by the planes `g` (albedo, normal, depth); `inv` holds
+/// the stops' inverse squares (the depth's inverse). The row's inner
+/// pixels in blocks of [`LANES`], every tap of a block summed in registers
+/// (the loop over the block's pixels vectorises); the pixels within `s` of
+/// the row's ends one by one, their taps outside the image left out.
 #[allow(clippy::too_many_arguments)]
-fn tap_into(
-    o0: &mut [f32],
-    o1: &mut [f32],
-    o2: &mut [f32],
-    ow: &mut [f32],
-    ov: &mut [f32],
-    g: [&[f32]; 14],
-    c: [&[f32]; 8],
-    inv: &Stops,
-    zs: f32,
-    hw: f32,
-) {
-    let len = o0.len();
-    assert!(g.iter().chain(c.iter()).all(|v| v.len() == len));
-    assert!(o1.len() == len && o2.len() == len && ow.len() == len && ov.len() == len);
-    let [pa0, pa1, pa2, pn0, pn1, pn2, pz, qa0, qa1, qa2, qn0, qn1, qn2, qz] = g;
-    let [pc0, pc1, pc2, pv, qc0, qc1, qc2, qv] = c;
-    let sq3 = |a: f32, b: f32, c: f32| a * a + b * b + c * c;
-    for i in 0..len {
-        let dn = sq3(pn0[i] - qn0[i], pn1[i] - qn1[i], pn2[i] - qn2[i]);
-        let da = sq3(pa0[i] - qa0[i], pa1[i] - qa1[i], pa2[i] - qa2[i]);
-        let dc = sq3(pc0[i] - qc0[i], pc1[i] - qc1[i], pc2[i] - qc2[i]);
-        let t = dn * inv.normal
-            + da * inv.albedo
-            + (pz[i] - qz[i]).abs() * zs / pz[i].max(1e-3)
-            + dc / (pv[i] + qv[i] + 1e-12);
-        let wt = hw * mcdenoise_core::exp_select(-t);
-        o0[i] += wt * qc0[i];
-        o1[i] += wt * qc1[i];
-        o2[i] += wt * qc2[i];
-        ow[i] += wt;
-        ov[i] += wt * wt * qv[i];
+#[inline(always)]
+fn step_row(src: &[f32], g: &[f32], inv: &Stops, w: usize, h: usize, y: usize, s: usize, out: &mut [&mut [f32]]) {
+    let n = w * h;
+    let zs = inv.depth / s as f32;
+    // The 11 planes (colour 3, variance, albedo 3, normal 3, depth) of row yy.
+    let planes = |yy: usize| -> [&[f32]; 11] {
+        core::array::from_fn(|k| {
+            let (v, k) = if k < 4 { (src, k) } else { (g, k - 4) };
+            &v[k * n + yy * w..k * n + yy * w + w]
+        })
+    };
+    let p = planes(y);
+    // (The row tap's weight and the row's planes, for the rows inside.)
+    type Row<'a> = Option<(f32, [&'a [f32]; 11])>;
+    let rows: [Row<'_>; 3] = core::array::from_fn(|dy| {
+        let qy = y as isize + (dy as isize - 1) * s as isize;
+        (qy >= 0 && qy < h as isize).then(|| (TAPS[dy], planes(qy as usize)))
+    });
+    // The weight's exponent between pixel values `a` and tap values `b`
+    // (the 11 planes' values at each).
+    #[inline(always)]
+    fn exponent(a: [f32; 11], b: [f32; 11], inv: &Stops, zs: f32) -> f32 {
+        let sq3 = |k: usize| (a[k] - b[k]).powi(2) + (a[k + 1] - b[k + 1]).powi(2) + (a[k + 2] - b[k + 2]).powi(2);
+        sq3(7) * inv.normal
+            + sq3(4) * inv.albedo
+            + (a[10] - b[10]).abs() * zs / a[10].max(1e-3)
+            + sq3(0) / (a[3] + b[3] + 1e-12)
+    }
+    let write = |out: &mut [&mut [f32]], x: usize, acc: [f32; 5]| {
+        let r = 1.0 / acc[3];
+        out[0][x] = acc[0] * r;
+        out[1][x] = acc[1] * r;
+        out[2][x] = acc[2] * r;
+        out[3][x] = acc[4] * r * r;
+    };
+    // One pixel, every tap inside the image.
+    let pixel = |x: usize| -> [f32; 5] {
+        let a: [f32; 11] = core::array::from_fn(|k| p[k][x]);
+        let mut acc = [0.0f32; 5];
+        for (dy, row) in rows.iter().enumerate() {
+            let Some((hy, q)) = row else { continue };
+            for (dx, &hx) in TAPS.iter().enumerate() {
+                let qx = x as isize + (dx as isize - 1) * s as isize;
+                if qx < 0 || qx >= w as isize {
+                    continue;
+                }
+                let b: [f32; 11] = core::array::from_fn(|k| q[k][qx as usize]);
+                let wt = if dy == 1 && dx == 1 {
+                    hy * hx
+                } else {
+                    hy * hx * mcdenoise_core::exp_select(-exponent(a, b, inv, zs))
+                };
+                acc[0] += wt * b[0];
+                acc[1] += wt * b[1];
+                acc[2] += wt * b[2];
+                acc[3] += wt;
+                acc[4] += wt * wt * b[3];
+            }
+        }
+        acc
+    };
+    let (lo, hi) = (s.min(w), w.saturating_sub(s).max(s.min(w)));
+    for x in 0..lo {
+        write(out, x, pixel(x));
+    }
+    let mut x = lo;
+    while x + LANES <= hi {
+        let block = |v: &[f32], at: usize| -> [f32; LANES] { v[at..at + LANES].try_into().expect("LANES values") };
+        let pa: [[f32; LANES]; 11] = core::array::from_fn(|k| block(p[k], x));
+        let mut acc = [[0.0f32; LANES]; 5];
+        for (dy, row) in rows.iter().enumerate() {
+            let Some((hy, q)) = row else { continue };
+            for (dx, &hx) in TAPS.iter().enumerate() {
+                let at = (x as isize + (dx as isize - 1) * s as isize) as usize;
+                let qb: [[f32; LANES]; 11] = core::array::from_fn(|k| block(q[k], at));
+                let hw = hy * hx;
+                let centre = dy == 1 && dx == 1;
+                for l in 0..LANES {
+                    let a: [f32; 11] = core::array::from_fn(|k| pa[k][l]);
+                    let b: [f32; 11] = core::array::from_fn(|k| qb[k][l]);
+                    let wt = if centre { hw } else { hw * mcdenoise_core::exp_select(-exponent(a, b, inv, zs)) };
+                    acc[0][l] += wt * b[0];
+                    acc[1][l] += wt * b[1];
+                    acc[2][l] += wt * b[2];
+                    acc[3][l] += wt;
+                    acc[4][l] += wt * wt * b[3];
+                }
+            }
+        }
+        for (l, xl) in (x..x + LANES).enumerate() {
+            write(out, xl, core::array::from_fn(|k| acc[k][l]));
+        }
+        x += LANES;
+    }
+    for x in x..w {
+        write(out, x, pixel(x));
     }
 }
 
@@ -290,129 +347,12 @@ unsafe fn step_row_avx2(
     y: usize,
     s: usize,
     out: &mut [&mut [f32]],
-    tmp: &mut [f32],
 ) {
-    step_row(src, g, inv, w, h, y, s, out, tmp)
+    step_row(src, g, inv, w, h, y, s, out)
 }
 
 /// The 3-tap B-spline of one à-trous step.
 const TAPS: [f32; 3] = [0.25, 0.5, 0.25];
-
-/// One à-trous step of row `y` (holes `s` pixels apart) from the planes
-/// `src` (colour, residual variance) into `out` (the row of each of the 4
-/// planes), guided by the planes `g` (albedo, normal, depth); `inv` holds
-/// the stops' inverse squares (the depth's inverse). Tap by tap over the
-/// whole row, so that the loop over the pixels vectorises; `tmp` holds 6
-/// rows.
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-fn step_row(
-    src: &[f32],
-    g: &[f32],
-    inv: &Stops,
-    w: usize,
-    h: usize,
-    y: usize,
-    s: usize,
-    out: &mut [&mut [f32]],
-    tmp: &mut [f32],
-) {
-    let n = w * h;
-    fn sub(v: &[f32], at: usize, len: usize) -> &[f32] {
-        &v[at..at + len]
-    }
-    let row = |_: &[f32], k: usize, yy: usize| k * n + yy * w;
-    let (acc, rest) = tmp.split_at_mut(3 * w);
-    let (ws, rest) = rest.split_at_mut(w);
-    let vs = &mut rest[..w];
-    acc.fill(0.0);
-    ws.fill(0.0);
-    vs.fill(0.0);
-    let zs = inv.depth / s as f32;
-    let (cp0, cp1, cp2, vp) = (
-        sub(src, row(src, 0, y), w),
-        sub(src, row(src, 1, y), w),
-        sub(src, row(src, 2, y), w),
-        sub(src, row(src, 3, y), w),
-    );
-    let gp: [&[f32]; 7] = core::array::from_fn(|k| sub(g, row(g, k, y), w));
-    for (dy, &hy) in TAPS.iter().enumerate() {
-        let qy = y as isize + (dy as isize - 1) * s as isize;
-        if qy < 0 || qy >= h as isize {
-            continue;
-        }
-        let qy = qy as usize;
-        let (cq0, cq1, cq2, vq) = (
-            sub(src, row(src, 0, qy), w),
-            sub(src, row(src, 1, qy), w),
-            sub(src, row(src, 2, qy), w),
-            sub(src, row(src, 3, qy), w),
-        );
-        let gq: [&[f32]; 7] = core::array::from_fn(|k| sub(g, row(g, k, qy), w));
-        for (dx, &hx) in TAPS.iter().enumerate() {
-            let off = (dx as isize - 1) * s as isize;
-            // The pixels x whose tap x + off is inside the row.
-            let x0 = (-off).max(0) as usize;
-            let x1 = (w as isize - off.max(0)).max(0) as usize;
-            if x0 >= x1 {
-                continue;
-            }
-            let q0 = (x0 as isize + off) as usize;
-            let len = x1 - x0;
-            let hw = hy * hx;
-            let (a0, a12) = acc.split_at_mut(w);
-            let (a1, a2) = a12.split_at_mut(w);
-            if dy == 1 && dx == 1 {
-                for x in x0..x1 {
-                    a0[x] += hw * cp0[x];
-                    a1[x] += hw * cp1[x];
-                    a2[x] += hw * cp2[x];
-                    ws[x] += hw;
-                    vs[x] += hw * hw * vp[x];
-                }
-                continue;
-            }
-            let (pa0, pa1, pa2, pn0, pn1, pn2, pz) = (
-                sub(gp[0], x0, len),
-                sub(gp[1], x0, len),
-                sub(gp[2], x0, len),
-                sub(gp[3], x0, len),
-                sub(gp[4], x0, len),
-                sub(gp[5], x0, len),
-                sub(gp[6], x0, len),
-            );
-            let (qa0, qa1, qa2, qn0, qn1, qn2, qz) = (
-                sub(gq[0], q0, len),
-                sub(gq[1], q0, len),
-                sub(gq[2], q0, len),
-                sub(gq[3], q0, len),
-                sub(gq[4], q0, len),
-                sub(gq[5], q0, len),
-                sub(gq[6], q0, len),
-            );
-            let (pc0, pc1, pc2, pv) = (sub(cp0, x0, len), sub(cp1, x0, len), sub(cp2, x0, len), sub(vp, x0, len));
-            let (qc0, qc1, qc2, qv) = (sub(cq0, q0, len), sub(cq1, q0, len), sub(cq2, q0, len), sub(vq, q0, len));
-            let (o0, o1, o2, ow, ov) =
-                (&mut a0[x0..x1], &mut a1[x0..x1], &mut a2[x0..x1], &mut ws[x0..x1], &mut vs[x0..x1]);
-            tap(
-                [o0, o1, o2, ow, ov],
-                [pa0, pa1, pa2, pn0, pn1, pn2, pz, qa0, qa1, qa2, qn0, qn1, qn2, qz],
-                [pc0, pc1, pc2, pv, qc0, qc1, qc2, qv],
-                inv,
-                zs,
-                hw,
-            );
-        }
-    }
-    // (The centre's weight, 1/4, keeps ws > 0.)
-    for x in 0..w {
-        let r = 1.0 / ws[x];
-        out[0][x] = acc[x] * r;
-        out[1][x] = acc[w + x] * r;
-        out[2][x] = acc[2 * w + x] * r;
-        out[3][x] = vs[x] * r * r;
-    }
-}
 
 #[cfg(test)]
 mod tests {
@@ -489,18 +429,17 @@ mod tests {
         for avx2 in paths {
             for s in [1usize, 2, 4] {
                 let mut out = vec![0.0f32; 4 * w];
-                let mut tmp = vec![0.0f32; 6 * w];
                 for y in 0..h {
                     let mut rows: Vec<&mut [f32]> = out.chunks_mut(w).collect();
                     #[cfg(target_arch = "x86_64")]
                     if avx2 {
                         // SAFETY: checked above that this CPU has AVX2 (and FMA).
-                        unsafe { step_row_avx2(&src, &g, &inv, w, h, y, s, &mut rows, &mut tmp) };
+                        unsafe { step_row_avx2(&src, &g, &inv, w, h, y, s, &mut rows) };
                     } else {
-                        step_row(&src, &g, &inv, w, h, y, s, &mut rows, &mut tmp);
+                        step_row(&src, &g, &inv, w, h, y, s, &mut rows);
                     }
                     #[cfg(not(target_arch = "x86_64"))]
-                    step_row(&src, &g, &inv, w, h, y, s, &mut rows, &mut tmp);
+                    step_row(&src, &g, &inv, w, h, y, s, &mut rows);
                     for x in 0..w {
                         let want = oracle(&src, &g, &st, w, h, x, y, s);
                         for k in 0..4 {
