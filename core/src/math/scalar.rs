@@ -23,7 +23,7 @@ pub fn exp(x: f32) -> f32 {
     p * scale
 }
 
-/// [`exp`] written without branches (selects only), so that loops calling it
+/// The scalar `exp` of this module written without branches (selects only), so that loops calling it
 /// vectorise; the same value for every input.
 #[inline(always)]
 pub fn exp_select(x: f32) -> f32 {
