@@ -101,6 +101,19 @@ pub struct Guides<'a> {
     pub depth: &'a [f32],
 }
 
+impl<'a> Guides<'a> {
+    /// The frame's albedo, normal and depth; a missing one is an error
+    /// naming the buffer and `who` (the method).
+    pub fn of(f: &'a crate::io::frame::Frame, who: &str) -> Result<Guides<'a>> {
+        use crate::io::frame::Buffer;
+        Ok(Guides {
+            albedo: f.require(Buffer::Albedo, who)?,
+            normal: f.require(Buffer::Normal, who)?,
+            depth: f.require(Buffer::Depth, who)?,
+        })
+    }
+}
+
 /// The edge-stopping scales.
 #[derive(Clone, Copy, Debug)]
 struct Stops {

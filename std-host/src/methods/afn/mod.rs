@@ -854,13 +854,8 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
             }
         }
         if self.wide {
-            use crate::io::frame::Buffer;
-            let colour = f.require(Buffer::Color, "afn")?;
-            let guides = crate::methods::wide::Guides {
-                albedo: f.require(Buffer::Albedo, "afn")?,
-                normal: f.require(Buffer::Normal, "afn")?,
-                depth: f.require(Buffer::Depth, "afn")?,
-            };
+            let colour = f.require(crate::io::frame::Buffer::Color, "afn")?;
+            let guides = crate::methods::wide::Guides::of(f, "afn")?;
             t.time("wide pass", || {
                 crate::methods::wide::pass(
                     ctx,

@@ -676,13 +676,8 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
             *o += d * e;
         }
         if self.wide {
-            use crate::io::frame::Buffer;
-            let colour = f.require(Buffer::Color, "wskp")?;
-            let guides = crate::methods::wide::Guides {
-                albedo: a,
-                normal: f.require(Buffer::Normal, "wskp")?,
-                depth: f.require(Buffer::Depth, "wskp")?,
-            };
+            let colour = f.require(crate::io::frame::Buffer::Color, "wskp")?;
+            let guides = crate::methods::wide::Guides::of(f, "wskp")?;
             t.time("wide pass", || {
                 crate::methods::wide::pass(
                     ctx,
