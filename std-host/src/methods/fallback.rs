@@ -171,22 +171,84 @@ pub fn to_input(
     h: usize,
     exposure: f32,
 ) -> Result<()> {
+    if w * h == 0 {
+        return Ok(());
+    }
+    let noise = Noise::of(ctx, y, pair, w, h, exposure)?;
+    to_input_with(ctx, o, y, noise, pair, albedo, w, h, exposure)
+}
+
+/// Bytes per pixel a [`Noise`] holds.
+pub const NOISE_BYTES: u64 = 4 * 5;
+/// Bytes per pixel [`Noise::of`] allocates at its peak (the exposure-scaled
+/// input beside its `log1p`).
+pub const NOISE_PEAK_BYTES: u64 = 4 * 6;
+/// Bytes per pixel [`to_input_with`] allocates for the time it runs,
+/// besides the [`Noise`] it is given.
+pub const WITH_TEMP_BYTES: u64 = 4 * 2;
+
+/// The input's noise, as the fallback and the wide pass
+/// ([`crate::methods::wide`]) read it: computed once a frame for both.
+#[derive(Debug)]
+pub struct Noise {
+    /// The input in exposure-normalised `log1p` colour (3 planes).
+    ly: Vec<f32>,
+    /// Its noise variance per pixel (the channels' mean; [`log_and_noise`]).
+    raw: Vec<f32>,
+    /// `raw`'s mean over each pixel's 7x7 window ([`window_means`]).
+    means: Vec<f32>,
+}
+
+impl Noise {
+    /// The noise of the input `y` (3 planes of `w x h`, linear), from
+    /// `pair` where given, at the exposure `exposure`.
+    pub fn of(ctx: &mut Ctx, y: &[f32], pair: Option<Pair<'_>>, w: usize, h: usize, exposure: f32) -> Result<Noise> {
+        let (ly, raw) = log_and_noise(ctx, y, pair, w, h, positive_exposure(exposure))?;
+        let mut means = raw.clone();
+        window_means(ctx, &mut means, w, h);
+        Ok(Noise { ly, raw, means })
+    }
+
+    /// The noise variance's 7x7 window mean per pixel.
+    pub fn means(&self) -> &[f32] {
+        &self.means
+    }
+}
+
+/// [`to_input`] with the input's noise computed already (`noise`, of `y`,
+/// `pair` and `exposure`, as [`Noise::of`] makes it).
+#[allow(clippy::too_many_arguments)]
+pub fn to_input_with(
+    ctx: &mut Ctx,
+    o: &mut [f32],
+    y: &[f32],
+    noise: Noise,
+    pair: Option<Pair<'_>>,
+    albedo: &[f32],
+    w: usize,
+    h: usize,
+    exposure: f32,
+) -> Result<()> {
     let n = w * h;
     if n == 0 {
         return Ok(());
+    }
+    if noise.ly.len() != 3 * n || noise.raw.len() != n || noise.means.len() != n {
+        return Err(crate::error::HostError::Kernel(format!(
+            "fallback: the input's noise is of {} pixels, the frame has {n}",
+            noise.raw.len()
+        )));
     }
     let e = positive_exposure(exposure);
     let log = |v: f32| if v.is_finite() { (e * v).max(0.0).ln_1p() } else { 0.0 };
     // (Per-pixel passes run in runs of pixels on the pool.)
     const RUN: usize = 1 << 14;
-    let (ly, mut raw) = log_and_noise(ctx, y, pair, w, h, e)?;
+    let Noise { ly, mut raw, means: mut m } = noise;
     let ly = &ly;
     let fin = |v: f32| if v.is_finite() { v.min(1e12) } else { 1e12 };
     // The noise levels: the 7x7 window mean of the estimate (per channel)
-    // at every pixel; the frame's is their median, a region's the median
-    // over its tile ([`region_levels`]). A 1-spp frame ends here.
-    let mut m = raw.clone();
-    window_means(ctx, &mut m, w, h);
+    // at every pixel (`m`); the frame's is their median, a region's the
+    // median over its tile ([`region_levels`]). A 1-spp frame ends here.
     let mut sorted = m.clone();
     let level = *sorted.select_nth_unstable_by(n / 2, |a, b| a.total_cmp(b)).1;
     // The fade asks how reliable the noise estimate is, which depends on the
@@ -323,7 +385,6 @@ pub(crate) fn log_and_noise(
     e: f32,
 ) -> Result<(Vec<f32>, Vec<f32>)> {
     let n = w * h;
-    let log = |v: f32| if v.is_finite() { (e * v).max(0.0).ln_1p() } else { 0.0 };
     const RUN: usize = 1 << 14;
     // `log(y)`: the exposure-scaled input (non-finite values as 0) through
     // the core's SIMD `log1p`.
@@ -334,8 +395,8 @@ pub(crate) fn log_and_noise(
         }
     });
     let mut ly = vec![0.0f32; 3 * n];
+    use mcdenoise_core::tonemap::{map, Map};
     {
-        use mcdenoise_core::tonemap::{map, Map};
         map::<mcdenoise_core::F32>(
             ctx.isa,
             Map::Log1p,
@@ -349,10 +410,26 @@ pub(crate) fn log_and_noise(
         Some(p) if p.b.len() == 3 * n => {
             let ly = &ly;
             let b = p.b;
+            let isa = ctx.isa;
+            // `log(b)` a run at a time through the core's SIMD `log1p`.
             ctx.pool.planes(vec![&mut raw[..]], RUN, |start, runs| {
-                for (j, r) in runs[0].iter_mut().enumerate() {
-                    let i = start + j;
-                    *r = (0..3).map(|c| p.variance(ly[c * n + i], log(b[c * n + i]))).sum::<f32>() / 3.0;
+                let r = &mut *runs[0];
+                let len = r.len();
+                let (mut eb, mut lb) = (vec![0.0f32; len], vec![0.0f32; len]);
+                r.fill(0.0);
+                for c in 0..3 {
+                    for (d, &v) in eb.iter_mut().zip(&b[c * n + start..]) {
+                        *d = if v.is_finite() { e * v } else { 0.0 };
+                    }
+                    let src = View::new(&eb, 1, len, 1).expect("a run's shape");
+                    let mut dst = ViewMut::new(&mut lb, 1, len, 1).expect("a run's shape");
+                    map::<mcdenoise_core::F32>(isa, Map::Log1p, &src, &mut dst).expect("log1p takes every value");
+                    for ((r, &l), &lyv) in r.iter_mut().zip(&lb).zip(&ly[c * n + start..]) {
+                        *r += p.variance(lyv, l);
+                    }
+                }
+                for r in r.iter_mut() {
+                    *r /= 3.0;
                 }
             });
         }

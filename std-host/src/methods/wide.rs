@@ -36,9 +36,9 @@ use mcdenoise_core::tonemap::{self, Map};
 use mcdenoise_core::{Isa, View, ViewMut, F32};
 
 use crate::error::Result;
-use crate::io::frame::Pair;
-use crate::methods::fallback::{log_and_noise, positive_exposure, window_means};
-use crate::methods::Ctx;
+use crate::io::frame::{Buffer, Frame};
+use crate::methods::fallback::{positive_exposure, Noise};
+use crate::methods::{Ctx, Timings};
 
 /// À-trous levels (holes 1, 2 and 4 pixels apart; 4 and 5 levels score
 /// 0.01-0.1 dB lower on the generator's `val` scenes).
@@ -59,9 +59,6 @@ pub const SIGMA_DEPTH: f32 = 0.02;
 /// The stage's name in plans.
 pub const STAGE: &str = "wide pass (à-trous over the output where the history is short)";
 
-/// Bytes per pixel [`pass`] allocates for the time it runs (at its peak:
-/// the input's log and its noise).
-pub const TEMP_BYTES: u64 = 4 * 7;
 /// Bytes per pixel of [`Buffers`], kept from frame to frame: two copies of
 /// the colour and variance, the guides.
 pub const KEPT_BYTES: u64 = 4 * 15;
@@ -122,17 +119,74 @@ struct Stops {
     depth: f32,
 }
 
+/// The tail WSKP and AFN share after their filters: the input's noise,
+/// computed once ([`Noise`]), then the wide pass over `out` (where `wide`
+/// gives its buffers and the history counts) and the fallback to the input
+/// (where `fallback`), each timed as its own stage. `who`, the method,
+/// names a missing buffer.
+#[allow(clippy::too_many_arguments)]
+pub fn finish(
+    ctx: &mut Ctx,
+    t: &mut Timings,
+    out: &mut [f32],
+    f: &Frame,
+    who: &str,
+    wide: Option<(&mut Buffers, &[f32])>,
+    fallback: bool,
+    exposure: f32,
+) -> Result<()> {
+    if wide.is_none() && !fallback {
+        return Ok(());
+    }
+    let (w, h) = (f.width, f.height);
+    let colour = f.require(Buffer::Color, who)?;
+    let pair = f.pair();
+    let noise = t.time(NOISE_STAGE, || Noise::of(ctx, colour, pair, w, h, exposure))?;
+    if let Some((bufs, counts)) = wide {
+        let guides = Guides::of(f, who)?;
+        t.time("wide pass", || pass(ctx, bufs, out, &noise, counts, guides, w, h, exposure))?;
+    }
+    if fallback {
+        let albedo = f.require(Buffer::Albedo, who)?;
+        t.time("fallback", || {
+            crate::methods::fallback::to_input_with(ctx, out, colour, noise, pair, albedo, w, h, exposure)
+        })?;
+    }
+    Ok(())
+}
+
+/// The `--timings` stage of [`finish`]'s noise estimate.
+pub const NOISE_STAGE: &str = "input noise (wide pass, fallback)";
+
+/// Records [`finish`]'s allocations in a method's ledger: the noise (kept
+/// through both stages), the pass's buffers (`wide_first` bytes a pixel
+/// allocated now: on the first frame), the fallback's own.
+pub fn ledger(l: &mut crate::runtime::memory::Ledger, wide: bool, wide_first: u64, fallback: bool) {
+    use crate::methods::fallback::{NOISE_BYTES, NOISE_PEAK_BYTES, WITH_TEMP_BYTES};
+    if !wide && !fallback {
+        return;
+    }
+    l.temp(NOISE_PEAK_BYTES).alloc(NOISE_BYTES);
+    if wide {
+        l.alloc(wide_first);
+    }
+    if fallback {
+        l.temp(WITH_TEMP_BYTES);
+    }
+    l.free(NOISE_BYTES);
+}
+
 /// Filters the output `o` (3 planes of `w x h`, linear) in place (see the
-/// module). `y`: the frame's colour (3 planes), whose noise, from `pair`
-/// where given, over `counts` (the history count per pixel, 1 plane; a
-/// count under 1 counts as 1) is the output's residual noise estimate.
+/// module). `noise`: the frame's colour's noise ([`Noise::of`], of the
+/// same `exposure`), which over `counts` (the history count per pixel, 1
+/// plane; a count under 1 counts as 1) is the output's residual noise
+/// estimate.
 #[allow(clippy::too_many_arguments)]
 pub fn pass(
     ctx: &mut Ctx,
     bufs: &mut Buffers,
     o: &mut [f32],
-    y: &[f32],
-    pair: Option<Pair<'_>>,
+    noise: &Noise,
     counts: &[f32],
     guides: Guides<'_>,
     w: usize,
@@ -143,11 +197,18 @@ pub fn pass(
     if n == 0 {
         return Ok(());
     }
+    let v = noise.means();
+    if v.len() != n || counts.len() != n || o.len() < 3 * n {
+        return Err(crate::error::HostError::Kernel(format!(
+            "wide pass: {} noise values, {} counts and {} outputs for {n} pixels",
+            v.len(),
+            counts.len(),
+            o.len()
+        )));
+    }
     let e = positive_exposure(exposure);
     const RUN: usize = 1 << 14;
     let st = Stops { normal: SIGMA_NORMAL, albedo: SIGMA_ALBEDO, depth: SIGMA_DEPTH };
-    let (_, mut v) = log_and_noise(ctx, y, pair, w, h, e)?;
-    window_means(ctx, &mut v, w, h);
     let fin = |v: f32| if v.is_finite() { v } else { 0.0 };
     let isa = ctx.isa;
     // Planes: colour (3) and residual variance in `a`; albedo (3), normal
@@ -191,7 +252,6 @@ pub fn pass(
             }
         });
     }
-    drop(v);
     let inv =
         Stops { normal: 1.0 / (st.normal * st.normal), albedo: 1.0 / (st.albedo * st.albedo), depth: 1.0 / st.depth };
     for level in 0..LEVELS {
@@ -206,13 +266,16 @@ pub fn pass(
             use rayon::prelude::*;
             by_row.into_par_iter().enumerate().with_min_len(4).for_each(|(y, mut out)| {
                 #[cfg(target_arch = "x86_64")]
-                if isa != Isa::Scalar {
+                match isa {
                     // SAFETY: `ctx.isa` is one this CPU has (checked
-                    // when the context was made), AVX2 and FMA at least.
-                    unsafe { step_row_avx2(src, g, &inv, w, h, y, 1 << level, &mut out) };
-                    return;
+                    // when the context was made).
+                    Isa::Avx512 => unsafe { step_row_avx512(src, g, &inv, w, h, y, 1 << level, &mut out) },
+                    // SAFETY: as above; AVX2 and FMA at least.
+                    Isa::Avx2 => unsafe { step_row_avx2(src, g, &inv, w, h, y, 1 << level, &mut out) },
+                    _ => step_row::<LANES>(src, g, &inv, w, h, y, 1 << level, &mut out),
                 }
-                step_row(src, g, &inv, w, h, y, 1 << level, &mut out)
+                #[cfg(not(target_arch = "x86_64"))]
+                step_row::<LANES>(src, g, &inv, w, h, y, 1 << level, &mut out)
             });
         });
         std::mem::swap(&mut a, &mut b);
@@ -237,7 +300,8 @@ pub fn pass(
     Ok(())
 }
 
-/// Pixels a block of [`step_row`] holds in registers.
+/// Pixels a block of [`step_row`] holds in registers: one AVX2 register
+/// of f32 a plane (AVX-512 builds take 16).
 const LANES: usize = 8;
 
 /// One à-trous step of row `y` (holes `s` pixels apart) from the planes
@@ -249,7 +313,16 @@ const LANES: usize = 8;
 /// the row's ends one by one, their taps outside the image left out.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn step_row(src: &[f32], g: &[f32], inv: &Stops, w: usize, h: usize, y: usize, s: usize, out: &mut [&mut [f32]]) {
+fn step_row<const LANES: usize>(
+    src: &[f32],
+    g: &[f32],
+    inv: &Stops,
+    w: usize,
+    h: usize,
+    y: usize,
+    s: usize,
+    out: &mut [&mut [f32]],
+) {
     let n = w * h;
     let zs = inv.depth / s as f32;
     // The 11 planes (colour 3, variance, albedo 3, normal 3, depth) of row yy.
@@ -361,7 +434,24 @@ unsafe fn step_row_avx2(
     s: usize,
     out: &mut [&mut [f32]],
 ) {
-    step_row(src, g, inv, w, h, y, s, out)
+    step_row::<LANES>(src, g, inv, w, h, y, s, out)
+}
+
+/// [`step_row`] compiled for AVX-512, on blocks of 16 pixels.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl,avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn step_row_avx512(
+    src: &[f32],
+    g: &[f32],
+    inv: &Stops,
+    w: usize,
+    h: usize,
+    y: usize,
+    s: usize,
+    out: &mut [&mut [f32]],
+) {
+    step_row::<16>(src, g, inv, w, h, y, s, out)
 }
 
 /// The 3-tap B-spline of one à-trous step.
@@ -411,13 +501,14 @@ mod tests {
         [acc[0] / ws, acc[1] / ws, acc[2] / ws, vs / (ws * ws)]
     }
 
-    /// Every row of a step through [`step_row`] (and its AVX2 build where
-    /// this CPU has it) against the f64 oracle, at holes 1, 2 and 4 on a
+    /// Every row of a step through [`step_row`] (and its builds for AVX2 and
+    /// AVX-512 where this CPU has them) against the f64 oracle, at holes 1,
+    /// 2 and 4 (blocks of 8 and 16 pixels and the rows' ends) on a
     /// small random image whose guides differ from pixel to pixel by about
     /// their stops (so that the weights spread over their range).
     #[test]
     fn a_step_matches_an_f64_oracle() {
-        let (w, h) = (19, 13);
+        let (w, h) = (43, 13);
         let n = w * h;
         let mut s = 7u32;
         let mut src: Vec<f32> = (0..4 * n).map(|_| lcg(&mut s)).collect();
@@ -434,32 +525,31 @@ mod tests {
             albedo: 1.0 / (st.albedo * st.albedo),
             depth: 1.0 / st.depth,
         };
-        let mut paths: Vec<bool> = vec![false];
-        if cfg!(target_arch = "x86_64") && Isa::Avx2.check().is_ok() {
-            paths.push(true);
-        }
+        // Every build this CPU runs: scalar, AVX2 (blocks of 8), AVX-512 (16).
+        let paths: Vec<Isa> = Isa::ALL.iter().copied().filter(|i| i.check().is_ok()).collect();
         let mut spread = (f64::MAX, 0.0f64);
-        for avx2 in paths {
+        for isa in paths {
             for s in [1usize, 2, 4] {
                 let mut out = vec![0.0f32; 4 * w];
                 for y in 0..h {
                     let mut rows: Vec<&mut [f32]> = out.chunks_mut(w).collect();
                     #[cfg(target_arch = "x86_64")]
-                    if avx2 {
-                        // SAFETY: checked above that this CPU has AVX2 (and FMA).
-                        unsafe { step_row_avx2(&src, &g, &inv, w, h, y, s, &mut rows) };
-                    } else {
-                        step_row(&src, &g, &inv, w, h, y, s, &mut rows);
+                    match isa {
+                        // SAFETY: checked above that this CPU has it.
+                        Isa::Avx512 => unsafe { step_row_avx512(&src, &g, &inv, w, h, y, s, &mut rows) },
+                        // SAFETY: as above.
+                        Isa::Avx2 => unsafe { step_row_avx2(&src, &g, &inv, w, h, y, s, &mut rows) },
+                        _ => step_row::<LANES>(&src, &g, &inv, w, h, y, s, &mut rows),
                     }
                     #[cfg(not(target_arch = "x86_64"))]
-                    step_row(&src, &g, &inv, w, h, y, s, &mut rows);
+                    step_row::<LANES>(&src, &g, &inv, w, h, y, s, &mut rows);
                     for x in 0..w {
                         let want = oracle(&src, &g, &st, w, h, x, y, s);
                         for k in 0..4 {
                             let got = out[k * w + x] as f64;
                             assert!(
                                 (got - want[k]).abs() <= 2e-5 * want[k].abs().max(1e-2),
-                                "avx2 {avx2}, hole {s}, pixel ({x}, {y}), plane {k}: {got} against {}",
+                                "{isa:?}, hole {s}, pixel ({x}, {y}), plane {k}: {got} against {}",
                                 want[k]
                             );
                         }
@@ -525,7 +615,8 @@ mod tests {
         let walls = [4..w / 2 - 4, w / 2 + 4..w - 4];
         let run = |ctx: &mut Ctx, o: &[f32], y: &[f32], count: f32, e: f32| {
             let mut r = o.to_vec();
-            pass(ctx, &mut Buffers::default(), &mut r, y, None, &vec![count; n], guides, w, h, e).unwrap();
+            let noise = Noise::of(ctx, y, None, w, h, e).unwrap();
+            pass(ctx, &mut Buffers::default(), &mut r, &noise, &vec![count; n], guides, w, h, e).unwrap();
             r
         };
         let short = run(&mut ctx, &o, &y, 1.0, 1.0);

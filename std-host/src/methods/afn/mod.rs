@@ -576,10 +576,7 @@ impl<P: HostPrecision> Afn<P> {
             // The wide pass (its buffers kept, allocated on the first
             // frame; the history counts it reads were decoded at the start
             // of the frame), then the fallback to the input.
-            if wide {
-                l.alloc(wide_first).temp(crate::methods::wide::TEMP_BYTES);
-            }
-            l.temp(crate::methods::fallback::TEMP_BYTES);
+            crate::methods::wide::ledger(l, wide, wide_first, true);
         };
         // The first frame: the accumulation, the TA decode, the buffers (in
         // fixed point, the f32 range runs: the body's tensors kept while the
@@ -853,30 +850,8 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
                 out[k] = (i[k] + ex[k]) * alb[k];
             }
         }
-        if self.wide {
-            let colour = f.require(crate::io::frame::Buffer::Color, "afn")?;
-            let guides = crate::methods::wide::Guides::of(f, "afn")?;
-            t.time("wide pass", || {
-                crate::methods::wide::pass(
-                    ctx,
-                    &mut self.wide_bufs,
-                    &mut out,
-                    colour,
-                    f.pair(),
-                    &counts,
-                    guides,
-                    w,
-                    h,
-                    e,
-                )
-            })?;
-        }
-        if self.fallback {
-            let albedo = f.require(crate::io::frame::Buffer::Albedo, "afn")?;
-            let colour = f.require(crate::io::frame::Buffer::Color, "afn")?;
-            let pair = f.pair();
-            t.time("fallback", || crate::methods::fallback::to_input(ctx, &mut out, colour, pair, albedo, w, h, e))?;
-        }
+        let wide = self.wide.then_some((&mut self.wide_bufs, &counts[..]));
+        crate::methods::wide::finish(ctx, t, &mut out, f, "afn", wide, self.fallback, e)?;
         Ok(out)
     }
 }

@@ -455,12 +455,9 @@ impl<P: HostPrecision> Wskp<P> {
             if !f32s {
                 l.temp(3 * s);
             }
-            // The wide pass (its buffers kept, allocated on the first
-            // frame), then the fallback to the input.
-            if wide {
-                l.alloc(wide_first).temp(crate::methods::wide::TEMP_BYTES);
-            }
-            l.temp(crate::methods::fallback::TEMP_BYTES);
+            // The input's noise, the wide pass (its buffers kept, allocated
+            // on the first frame), then the fallback to the input.
+            crate::methods::wide::ledger(l, wide, wide_first, true);
         };
         let mut first = crate::runtime::memory::Ledger::default();
         let history = TemporalAccumulation::<P>::step_ledger(info, &mut first);
@@ -571,7 +568,6 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
                 &bufs.ta
             }
         };
-        let a = f.require(crate::io::frame::Buffer::Albedo, "wskp")?;
         let exposure = t.time("network inputs", || {
             inputs(&ctx.pool, f, ta, &mut bufs.x, &mut bufs.c, &mut bufs.alb, &mut bufs.ex)
         })?;
@@ -675,29 +671,8 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
         for ((o, &d), &e) in out.iter_mut().zip(&bufs.alb).zip(&bufs.ex) {
             *o += d * e;
         }
-        if self.wide {
-            let colour = f.require(crate::io::frame::Buffer::Color, "wskp")?;
-            let guides = crate::methods::wide::Guides::of(f, "wskp")?;
-            t.time("wide pass", || {
-                crate::methods::wide::pass(
-                    ctx,
-                    &mut bufs.wide,
-                    &mut out,
-                    colour,
-                    f.pair(),
-                    &bufs.counts,
-                    guides,
-                    w,
-                    h,
-                    exposure,
-                )
-            })?;
-        }
-        if self.fallback {
-            let colour = f.require(crate::io::frame::Buffer::Color, "wskp")?;
-            let pair = f.pair();
-            t.time("fallback", || crate::methods::fallback::to_input(ctx, &mut out, colour, pair, a, w, h, exposure))?;
-        }
+        let wide = self.wide.then_some((&mut bufs.wide, &bufs.counts[..]));
+        crate::methods::wide::finish(ctx, t, &mut out, f, "wskp", wide, self.fallback, exposure)?;
         Ok(out)
     }
 }
