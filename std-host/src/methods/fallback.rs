@@ -215,6 +215,30 @@ impl Noise {
     }
 }
 
+/// The frame's squared coefficient of variation: the median over the
+/// pixels of their window's `log1p` noise variance (`m`, the window means
+/// of the noise of `ly`) over the slope of `log1p` at the window's mean
+/// level, squared, over that level squared. `scratch` (`w x h` values) is
+/// overwritten.
+fn noise_cv2(ctx: &mut Ctx, ly: &[f32], m: &[f32], scratch: &mut [f32], w: usize, h: usize) -> f32 {
+    const RUN: usize = 1 << 14;
+    let n = w * h;
+    ctx.pool.planes(vec![&mut scratch[..]], RUN, |start, runs| {
+        for (j, v) in runs[0].iter_mut().enumerate() {
+            let i = start + j;
+            *v = (ly[i] + ly[n + i] + ly[2 * n + i]) / 3.0;
+        }
+    });
+    window_means(ctx, scratch, w, h);
+    ctx.pool.planes(vec![&mut scratch[..]], RUN, |start, runs| {
+        for (v, &level) in runs[0].iter_mut().zip(&m[start..]) {
+            let x = v.exp_m1().max(1e-3);
+            *v = level * ((1.0 + x) / x).powi(2);
+        }
+    });
+    *scratch.select_nth_unstable_by(n / 2, |a, b| a.total_cmp(b)).1
+}
+
 /// [`to_input`] with the input's noise computed already (`noise`, of `y`,
 /// `pair` and `exposure`, as [`Noise::of`] makes it).
 #[allow(clippy::too_many_arguments)]
@@ -277,23 +301,7 @@ pub fn to_input_with(
     // (computed into `sorted`, in place: the window's `log1p` variance over
     // the slope of `log1p` at the window's mean level, squared, over that
     // level squared); the pair's noise does not take texture for noise.
-    let regions = paired || {
-        ctx.pool.planes(vec![&mut sorted[..]], RUN, |start, runs| {
-            for (j, v) in runs[0].iter_mut().enumerate() {
-                let i = start + j;
-                *v = (ly[i] + ly[n + i] + ly[2 * n + i]) / 3.0;
-            }
-        });
-        window_means(ctx, &mut sorted, w, h);
-        let m = &m;
-        ctx.pool.planes(vec![&mut sorted[..]], RUN, |start, runs| {
-            for (v, &level) in runs[0].iter_mut().zip(&m[start..]) {
-                let x = v.exp_m1().max(1e-3);
-                *v = level * ((1.0 + x) / x).powi(2);
-            }
-        });
-        *sorted.select_nth_unstable_by(n / 2, |a, b| a.total_cmp(b)).1 >= REGION_CV2
-    };
+    let regions = paired || noise_cv2(ctx, ly, &m, &mut sorted, w, h) >= REGION_CV2;
     region_levels(&mut m, &mut sorted, w, h);
     drop(sorted);
     let mut any = false;

@@ -144,7 +144,7 @@ pub fn finish(
     let noise = t.time(NOISE_STAGE, || Noise::of(ctx, colour, pair, w, h, exposure))?;
     if let Some((bufs, counts)) = wide {
         let guides = Guides::of(f, who)?;
-        t.time("wide pass", || pass(ctx, bufs, out, &noise, counts, guides, w, h, exposure))?;
+        t.time("wide pass", || pass(ctx, bufs, out, noise.means(), counts, guides, w, h, exposure))?;
     }
     if fallback {
         let albedo = f.require(Buffer::Albedo, who)?;
@@ -177,16 +177,16 @@ pub fn ledger(l: &mut crate::runtime::memory::Ledger, wide: bool, wide_first: u6
 }
 
 /// Filters the output `o` (3 planes of `w x h`, linear) in place (see the
-/// module). `noise`: the frame's colour's noise ([`Noise::of`], of the
-/// same `exposure`), which over `counts` (the history count per pixel, 1
-/// plane; a count under 1 counts as 1) is the output's residual noise
-/// estimate.
+/// module). `v`: the frame's colour's noise variance, its 7x7 window mean
+/// per pixel ([`Noise::means`], at the same `exposure`), which over
+/// `counts` (the history count per pixel, 1 plane; a count under 1 counts
+/// as 1) is the output's residual noise estimate.
 #[allow(clippy::too_many_arguments)]
 pub fn pass(
     ctx: &mut Ctx,
     bufs: &mut Buffers,
     o: &mut [f32],
-    noise: &Noise,
+    v: &[f32],
     counts: &[f32],
     guides: Guides<'_>,
     w: usize,
@@ -197,7 +197,6 @@ pub fn pass(
     if n == 0 {
         return Ok(());
     }
-    let v = noise.means();
     if v.len() != n || counts.len() != n || o.len() < 3 * n {
         return Err(crate::error::HostError::Kernel(format!(
             "wide pass: {} noise values, {} counts and {} outputs for {n} pixels",
@@ -616,7 +615,7 @@ mod tests {
         let run = |ctx: &mut Ctx, o: &[f32], y: &[f32], count: f32, e: f32| {
             let mut r = o.to_vec();
             let noise = Noise::of(ctx, y, None, w, h, e).unwrap();
-            pass(ctx, &mut Buffers::default(), &mut r, &noise, &vec![count; n], guides, w, h, e).unwrap();
+            pass(ctx, &mut Buffers::default(), &mut r, noise.means(), &vec![count; n], guides, w, h, e).unwrap();
             r
         };
         let short = run(&mut ctx, &o, &y, 1.0, 1.0);
