@@ -392,6 +392,7 @@ pub(crate) fn log_and_noise(
     h: usize,
     e: f32,
 ) -> Result<(Vec<f32>, Vec<f32>)> {
+    use mcdenoise_core::tonemap::{map, Map};
     let n = w * h;
     const RUN: usize = 1 << 14;
     // `log(y)`: the exposure-scaled input (non-finite values as 0) through
@@ -403,7 +404,6 @@ pub(crate) fn log_and_noise(
         }
     });
     let mut ly = vec![0.0f32; 3 * n];
-    use mcdenoise_core::tonemap::{map, Map};
     {
         map::<mcdenoise_core::F32>(
             ctx.isa,

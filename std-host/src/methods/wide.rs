@@ -101,8 +101,7 @@ pub struct Guides<'a> {
 impl<'a> Guides<'a> {
     /// The frame's albedo, normal and depth; a missing one is an error
     /// naming the buffer and `who` (the method).
-    pub fn of(f: &'a crate::io::frame::Frame, who: &str) -> Result<Guides<'a>> {
-        use crate::io::frame::Buffer;
+    pub fn of(f: &'a Frame, who: &str) -> Result<Guides<'a>> {
         Ok(Guides {
             albedo: f.require(Buffer::Albedo, who)?,
             normal: f.require(Buffer::Normal, who)?,
@@ -159,21 +158,16 @@ pub fn finish(
 pub const NOISE_STAGE: &str = "input noise (wide pass, fallback)";
 
 /// Records [`finish`]'s allocations in a method's ledger: the noise (kept
-/// through both stages), the pass's buffers (`wide_first` bytes a pixel
-/// allocated now: on the first frame), the fallback's own.
-pub fn ledger(l: &mut crate::runtime::memory::Ledger, wide: bool, wide_first: u64, fallback: bool) {
+/// through both stages), the pass's buffers if `wide` (`wide_first` bytes
+/// a pixel allocated now: on the first frame), the fallback's own (counted
+/// whether or not it runs: an upper bound).
+pub fn ledger(l: &mut crate::runtime::memory::Ledger, wide: bool, wide_first: u64) {
     use crate::methods::fallback::{NOISE_BYTES, NOISE_PEAK_BYTES, WITH_TEMP_BYTES};
-    if !wide && !fallback {
-        return;
-    }
     l.temp(NOISE_PEAK_BYTES).alloc(NOISE_BYTES);
     if wide {
         l.alloc(wide_first);
     }
-    if fallback {
-        l.temp(WITH_TEMP_BYTES);
-    }
-    l.free(NOISE_BYTES);
+    l.temp(WITH_TEMP_BYTES).free(NOISE_BYTES);
 }
 
 /// Filters the output `o` (3 planes of `w x h`, linear) in place (see the
@@ -264,17 +258,9 @@ pub fn pass(
         ctx.pool.install(|| {
             use rayon::prelude::*;
             by_row.into_par_iter().enumerate().with_min_len(4).for_each(|(y, mut out)| {
-                #[cfg(target_arch = "x86_64")]
-                match isa {
-                    // SAFETY: `ctx.isa` is one this CPU has (checked
-                    // when the context was made).
-                    Isa::Avx512 => unsafe { step_row_avx512(src, g, &inv, w, h, y, 1 << level, &mut out) },
-                    // SAFETY: as above; AVX2 and FMA at least.
-                    Isa::Avx2 => unsafe { step_row_avx2(src, g, &inv, w, h, y, 1 << level, &mut out) },
-                    _ => step_row::<LANES>(src, g, &inv, w, h, y, 1 << level, &mut out),
-                }
-                #[cfg(not(target_arch = "x86_64"))]
-                step_row::<LANES>(src, g, &inv, w, h, y, 1 << level, &mut out)
+                // SAFETY: `ctx.isa` is one this CPU has (checked when the
+                // context was made).
+                unsafe { step_row_on(isa, &Step { src, g, inv: &inv, w, h, s: 1 << level }, y, &mut out) }
             });
         });
         std::mem::swap(&mut a, &mut b);
@@ -303,25 +289,14 @@ pub fn pass(
 /// of f32 a plane (AVX-512 builds take 16).
 const LANES: usize = 8;
 
-/// One à-trous step of row `y` (holes `s` pixels apart) from the planes
-/// `src` (colour, residual variance) into `out` (the row of each of the 4
-/// planes), guided by the planes `g` (albedo, normal, depth); `inv` holds
-/// the stops' inverse squares (the depth's inverse). The row's inner
-/// pixels in blocks of [`LANES`], every tap of a block summed in registers
+/// One à-trous step `st` ([`Step`]) of row `y` into `out` (the row of each
+/// of the 4 planes: colour, residual variance). The row's inner pixels in
+/// blocks of `LANES`, every tap of a block summed in registers
 /// (the loop over the block's pixels vectorises); the pixels within `s` of
 /// the row's ends one by one, their taps outside the image left out.
-#[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn step_row<const LANES: usize>(
-    src: &[f32],
-    g: &[f32],
-    inv: &Stops,
-    w: usize,
-    h: usize,
-    y: usize,
-    s: usize,
-    out: &mut [&mut [f32]],
-) {
+fn step_row<const LANES: usize>(st: &Step<'_>, y: usize, out: &mut [&mut [f32]]) {
+    let &Step { src, g, inv, w, h, s } = st;
     let n = w * h;
     let zs = inv.depth / s as f32;
     // The 11 planes (colour 3, variance, albedo 3, normal 3, depth) of row yy.
@@ -419,38 +394,53 @@ fn step_row<const LANES: usize>(
     }
 }
 
+/// The arguments of one à-trous step over the planes `src` (colour,
+/// residual variance) guided by the planes `g` (albedo, normal, depth),
+/// each `w x h`; `inv` holds the stops' inverse squares (the depth's
+/// inverse); `s` the hole.
+struct Step<'a> {
+    src: &'a [f32],
+    g: &'a [f32],
+    inv: &'a Stops,
+    w: usize,
+    h: usize,
+    s: usize,
+}
+
+/// [`step_row`] in the build for `isa`: blocks of 8 pixels on AVX2, 16
+/// on AVX-512.
+///
+/// # Safety
+///
+/// `isa` must be one this CPU has ([`Isa::check`]).
+unsafe fn step_row_on(isa: Isa, st: &Step<'_>, y: usize, out: &mut [&mut [f32]]) {
+    #[cfg(target_arch = "x86_64")]
+    match isa {
+        // SAFETY: the caller's `isa` is one this CPU has.
+        Isa::Avx512 => unsafe { step_row_avx512(st, y, out) },
+        // SAFETY: as above (AVX2 and FMA).
+        Isa::Avx2 => unsafe { step_row_avx2(st, y, out) },
+        Isa::Scalar => step_row::<LANES>(st, y, out),
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = isa;
+        step_row::<LANES>(st, y, out)
+    }
+}
+
 /// [`step_row`] compiled for AVX2 and FMA.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn step_row_avx2(
-    src: &[f32],
-    g: &[f32],
-    inv: &Stops,
-    w: usize,
-    h: usize,
-    y: usize,
-    s: usize,
-    out: &mut [&mut [f32]],
-) {
-    step_row::<LANES>(src, g, inv, w, h, y, s, out)
+unsafe fn step_row_avx2(st: &Step<'_>, y: usize, out: &mut [&mut [f32]]) {
+    step_row::<LANES>(st, y, out)
 }
 
 /// [`step_row`] compiled for AVX-512, on blocks of 16 pixels.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl,avx2,fma")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn step_row_avx512(
-    src: &[f32],
-    g: &[f32],
-    inv: &Stops,
-    w: usize,
-    h: usize,
-    y: usize,
-    s: usize,
-    out: &mut [&mut [f32]],
-) {
-    step_row::<16>(src, g, inv, w, h, y, s, out)
+unsafe fn step_row_avx512(st: &Step<'_>, y: usize, out: &mut [&mut [f32]]) {
+    step_row::<16>(st, y, out)
 }
 
 /// The 3-tap B-spline of one à-trous step.
@@ -532,16 +522,8 @@ mod tests {
                 let mut out = vec![0.0f32; 4 * w];
                 for y in 0..h {
                     let mut rows: Vec<&mut [f32]> = out.chunks_mut(w).collect();
-                    #[cfg(target_arch = "x86_64")]
-                    match isa {
-                        // SAFETY: checked above that this CPU has it.
-                        Isa::Avx512 => unsafe { step_row_avx512(&src, &g, &inv, w, h, y, s, &mut rows) },
-                        // SAFETY: as above.
-                        Isa::Avx2 => unsafe { step_row_avx2(&src, &g, &inv, w, h, y, s, &mut rows) },
-                        _ => step_row::<LANES>(&src, &g, &inv, w, h, y, s, &mut rows),
-                    }
-                    #[cfg(not(target_arch = "x86_64"))]
-                    step_row::<LANES>(&src, &g, &inv, w, h, y, s, &mut rows);
+                    // SAFETY: `paths` holds the ISAs this CPU has.
+                    unsafe { step_row_on(isa, &Step { src: &src, g: &g, inv: &inv, w, h, s }, y, &mut rows) };
                     for x in 0..w {
                         let want = oracle(&src, &g, &st, w, h, x, y, s);
                         for k in 0..4 {

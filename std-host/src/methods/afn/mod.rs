@@ -576,7 +576,7 @@ impl<P: HostPrecision> Afn<P> {
             // The wide pass (its buffers kept, allocated on the first
             // frame; the history counts it reads were decoded at the start
             // of the frame), then the fallback to the input.
-            crate::methods::wide::ledger(l, wide, wide_first, true);
+            crate::methods::wide::ledger(l, wide, wide_first);
         };
         // The first frame: the accumulation, the TA decode, the buffers (in
         // fixed point, the f32 range runs: the body's tensors kept while the

@@ -457,7 +457,7 @@ impl<P: HostPrecision> Wskp<P> {
             }
             // The input's noise, the wide pass (its buffers kept, allocated
             // on the first frame), then the fallback to the input.
-            crate::methods::wide::ledger(l, wide, wide_first, true);
+            crate::methods::wide::ledger(l, wide, wide_first);
         };
         let mut first = crate::runtime::memory::Ledger::default();
         let history = TemporalAccumulation::<P>::step_ledger(info, &mut first);
