@@ -202,6 +202,10 @@ fn learning_rate(s: &str) -> std::result::Result<f32, String> {
     real(s, 0.0, 1.0).map(|v| v as f32)
 }
 
+fn share(s: &str) -> std::result::Result<f32, String> {
+    real(s, 0.0, 1.0).map(|v| v as f32)
+}
+
 fn band_weight(s: &str) -> std::result::Result<f32, String> {
     real(s, 0.0, 100.0).map(|v| v as f32)
 }
@@ -608,6 +612,10 @@ struct TrainCli {
     /// cycles through the list; "off": none), so that the filters learn more than 1 spp's noise
     #[arg(long, value_name = "N,N,..", default_value = "4,16,64", value_parser = spp_list)]
     emulate_spp: SppList,
+    /// The share of crops drawn from the sequences' first frames, where the accumulation has no
+    /// history and the filters see the 1-spp frame itself (0: every frame alike)
+    #[arg(long, value_name = "P", default_value = "0", value_parser = share)]
+    first_frames: f32,
     /// Gradient norm clip (0: off)
     #[arg(long, value_name = "F", default_value = "0", value_parser = clip)]
     clip: f32,
@@ -819,6 +827,7 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
             a.sizes = t.sizes;
             a.estimates = t.estimates;
             a.emulate_spp = t.emulate_spp.0;
+            a.first_frames = t.first_frames;
             a.schedule = t.lr_schedule;
             Command::Train(a)
         }

@@ -673,3 +673,13 @@ fn train_names_a_bad_band_weight() {
         assert_fails(&out, 2, "--band-weight");
     }
 }
+
+/// A first-frames share that is not a number from 0 to 1 names the flag, exit 2.
+#[test]
+fn train_names_a_bad_first_frames_share() {
+    for bad in ["-0.1", "nan", "x", "1.5"] {
+        let flag = format!("--first-frames={bad}");
+        let out = run(&["train", "--data", ".", "-o", "w.safetensors", "--steps", "1", &flag]);
+        assert_fails(&out, 2, "--first-frames");
+    }
+}

@@ -101,6 +101,10 @@ pub struct TrainArgs {
     /// The temporal accumulation's history clamp (standard deviations; 0:
     /// off) the inputs are made with; recorded in the weights (`ta_clamp`).
     pub ta_clamp: f32,
+    /// The share of crops drawn from the sequences' first frames (no
+    /// temporal history: the accumulation is the 1-spp frame itself), the
+    /// rest uniformly over every sample (0: every crop uniformly).
+    pub first_frames: f32,
 }
 
 /// How the learning rate moves over a run of `--steps` steps.
@@ -163,6 +167,7 @@ impl Default for TrainArgs {
             sizes: wskp::Sizes::ALL,
             estimates: 2,
             emulate_spp: vec![4, 16, 64],
+            first_frames: 0.0,
             schedule: Schedule::Cosine,
             ta_clamp: crate::methods::TA_CLAMP,
         }
@@ -285,8 +290,15 @@ fn crop(sample: &Sample, at: CropAt, s: usize, p0: usize, p1: usize, dst: &mut [
     }
 }
 
-fn draw(rng: &mut Rng, samples: &[Sample], s: usize) -> CropAt {
-    let frame = rng.below(samples.len());
+/// A crop's place: with probability `first` from one of the samples
+/// `firsts` (the sequences' first frames), else from any sample. With
+/// `first` 0 the generator's draws are those of a run without the option.
+fn draw(rng: &mut Rng, samples: &[Sample], firsts: &[usize], first: f32, s: usize) -> CropAt {
+    let frame = if first > 0.0 && !firsts.is_empty() && rng.uniform() < first {
+        firsts[rng.below(firsts.len())]
+    } else {
+        rng.below(samples.len())
+    };
     let (w, h) = (samples[frame].w, samples[frame].h);
     CropAt { frame, x0: rng.below(w - s + 1), y0: rng.below(h - s + 1), t: rng.below(8) as u8 }
 }
@@ -522,6 +534,8 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     let mut samples = Vec::new();
     // Where each sample comes from (named when a step is skipped).
     let mut origins: Vec<String> = Vec::new();
+    // The samples that are a sequence's first frame (no history).
+    let mut firsts: Vec<usize> = Vec::new();
     let mut nseqs = 0;
     let mut skipped_seqs = Vec::new();
     for (k, d) in dirs.iter().enumerate() {
@@ -542,6 +556,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         };
         let n0 = samples.len();
         model.samples(&seq, &pool, (a.isa, a.ta_clamp), &mut samples)?;
+        firsts.push(n0);
         origins.extend((0..samples.len() - n0).map(|j| format!("{} frame {j}", d.display())));
         let swapped = a.estimates > 1 && seq.frames.iter().all(|f| f.has(Buffer::ColorB));
         if swapped {
@@ -550,6 +565,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             }
             let n0 = samples.len();
             model.samples(&seq, &pool, (a.isa, a.ta_clamp), &mut samples)?;
+            firsts.push(n0);
             origins.extend((0..samples.len() - n0).map(|j| format!("{} frame {j} (estimates swapped)", d.display())));
         }
         if !a.emulate_spp.is_empty() {
@@ -563,6 +579,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             emulate_spp(&mut seq, n)?;
             let n0 = samples.len();
             model.samples(&seq, &pool, (a.isa, a.ta_clamp), &mut samples)?;
+            firsts.push(n0);
             origins.extend((0..samples.len() - n0).map(|j| format!("{} frame {j} (as {n} spp)", d.display())));
         }
         nseqs += 1;
@@ -706,7 +723,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             break;
         }
         tr.adam.lr = a.schedule.lr(a.lr, step, a.steps);
-        let picks: Vec<CropAt> = (0..a.batch).map(|_| draw(&mut rng, &samples, s)).collect();
+        let picks: Vec<CropAt> = (0..a.batch).map(|_| draw(&mut rng, &samples, &firsts, a.first_frames, s)).collect();
         let fill = |i: usize, wss: &mut [Workspace]| -> Result<()> {
             let ws = &mut wss[0];
             let at = picks[i];
@@ -869,5 +886,30 @@ mod tests {
         assert!(want.is_finite());
         let got = input_psnr(std::slice::from_ref(&seq));
         assert!((got - want).abs() < 1e-9, "{got} vs {want}");
+    }
+
+    /// `--first-frames`: at 0 the draws are a plain uniform draw's (runs
+    /// before the option repeat bit for bit); at 1 every crop comes from a
+    /// first frame; at 0.3 about 0.3 + 0.7 x (their share of all samples).
+    #[test]
+    fn first_frames_share_of_the_crops() {
+        let s = 4;
+        let samples: Vec<Sample> = (0..40).map(|_| Sample { w: 6, h: 5, data: vec![half::f16::ZERO; 30] }).collect();
+        let firsts: Vec<usize> = (0..40).step_by(8).collect();
+        let (mut r0, mut r1) = (Rng::new(7), Rng::new(7));
+        for _ in 0..1000 {
+            let got = draw(&mut r0, &samples, &firsts, 0.0, s);
+            let frame = r1.below(40);
+            let (x0, y0, t) = (r1.below(3), r1.below(2), r1.below(8) as u8);
+            assert_eq!((got.frame, got.x0, got.y0, got.t), (frame, x0, y0, t));
+        }
+        let mut r = Rng::new(9);
+        assert!((0..1000).all(|_| draw(&mut r, &samples, &firsts, 1.0, s).frame.is_multiple_of(8)));
+        let n = 20000;
+        let hits = (0..n).filter(|_| draw(&mut r, &samples, &firsts, 0.3, s).frame.is_multiple_of(8)).count();
+        let want = 0.3 + 0.7 * 5.0 / 40.0;
+        let got = hits as f64 / n as f64;
+        // Binomial standard deviation about 0.0035: 5 of them.
+        assert!((got - want).abs() < 0.018, "{got} vs {want}");
     }
 }
