@@ -198,11 +198,8 @@ fn minutes(s: &str) -> std::result::Result<f64, String> {
     real(s, 0.0, 1e6)
 }
 
-fn learning_rate(s: &str) -> std::result::Result<f32, String> {
-    real(s, 0.0, 1.0).map(|v| v as f32)
-}
-
-fn share(s: &str) -> std::result::Result<f32, String> {
+/// A number from 0 to 1 (a learning rate, a share).
+fn unit(s: &str) -> std::result::Result<f32, String> {
     real(s, 0.0, 1.0).map(|v| v as f32)
 }
 
@@ -374,7 +371,7 @@ struct SettingsCli {
     #[arg(long, value_name = "FILE", help_heading = "Online method (cross)")]
     load_state: Option<PathBuf>,
     /// Cross: Adam's learning rate of the one step per frame
-    #[arg(long, value_name = "LR", default_value_t = mcdenoise::methods::cross::LR, value_parser = learning_rate, help_heading = "Online method (cross)")]
+    #[arg(long, value_name = "LR", default_value_t = mcdenoise::methods::cross::LR, value_parser = unit, help_heading = "Online method (cross)")]
     cross_lr: f32,
     /// Cross: no temporal reuse (no reprojection, no temporal loss; an ablation)
     #[arg(long, help_heading = "Online method (cross)")]
@@ -589,7 +586,7 @@ struct TrainCli {
     #[arg(long, value_name = "N", default_value = "128", value_parser = crop)]
     crop: usize,
     /// Adam's learning rate
-    #[arg(long, value_name = "F", default_value = "1e-3", value_parser = learning_rate)]
+    #[arg(long, value_name = "F", default_value = "1e-3", value_parser = unit)]
     lr: f32,
     /// The loss (l1-log: L1 of sign(v) ln(1+|v|), robust to the fireflies of noisy targets and of
     /// the input; relmse-n2n: relMSE normalised by the output with its gradient stopped, unbiased
@@ -614,7 +611,7 @@ struct TrainCli {
     emulate_spp: SppList,
     /// The share of crops drawn from the sequences' first frames, where the accumulation has no
     /// history and the filters see the 1-spp frame itself (0: every frame alike)
-    #[arg(long, value_name = "P", default_value = "0", value_parser = share)]
+    #[arg(long, value_name = "P", default_value = "0", value_parser = unit)]
     first_frames: f32,
     /// Gradient norm clip (0: off)
     #[arg(long, value_name = "F", default_value = "0", value_parser = clip)]

@@ -664,22 +664,16 @@ fn emulate_int8_is_refused_where_it_means_nothing() {
     assert!(!o.exists() || std::fs::read_dir(&o).unwrap().next().is_none(), "nothing written");
 }
 
-/// A band weight that is not a number from 0 to 100 names the flag, exit 2.
+/// A band weight that is not a number from 0 to 100, or a first-frames
+/// share that is not one from 0 to 1, names the flag, exit 2.
 #[test]
-fn train_names_a_bad_band_weight() {
-    for bad in ["-1", "nan", "x", "101"] {
-        let flag = format!("--band-weight={bad}");
-        let out = run(&["train", "--data", ".", "-o", "w.safetensors", "--steps", "1", &flag]);
-        assert_fails(&out, 2, "--band-weight");
-    }
-}
-
-/// A first-frames share that is not a number from 0 to 1 names the flag, exit 2.
-#[test]
-fn train_names_a_bad_first_frames_share() {
-    for bad in ["-0.1", "nan", "x", "1.5"] {
-        let flag = format!("--first-frames={bad}");
-        let out = run(&["train", "--data", ".", "-o", "w.safetensors", "--steps", "1", &flag]);
-        assert_fails(&out, 2, "--first-frames");
+fn train_names_a_bad_band_weight_or_first_frames_share() {
+    for (flag, bads) in [("--band-weight", ["-1", "nan", "x", "101"]), ("--first-frames", ["-0.1", "nan", "x", "1.5"])]
+    {
+        for bad in bads {
+            let arg = format!("{flag}={bad}");
+            let out = run(&["train", "--data", ".", "-o", "w.safetensors", "--steps", "1", &arg]);
+            assert_fails(&out, 2, flag);
+        }
     }
 }

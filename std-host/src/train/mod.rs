@@ -554,19 +554,22 @@ pub fn run(a: &TrainArgs) -> Result<()> {
                 continue;
             }
         };
-        let n0 = samples.len();
-        model.samples(&seq, &pool, (a.isa, a.ta_clamp), &mut samples)?;
-        firsts.push(n0);
-        origins.extend((0..samples.len() - n0).map(|j| format!("{} frame {j}", d.display())));
+        // One copy of the sequence's samples: its first frame's index kept,
+        // each frame's origin named (`what`: which copy).
+        let mut add = |seq: &Sequence, what: &str| -> Result<()> {
+            let n0 = samples.len();
+            model.samples(seq, &pool, (a.isa, a.ta_clamp), &mut samples)?;
+            firsts.push(n0);
+            origins.extend((0..samples.len() - n0).map(|j| format!("{} frame {j}{what}", d.display())));
+            Ok(())
+        };
+        add(&seq, "")?;
         let swapped = a.estimates > 1 && seq.frames.iter().all(|f| f.has(Buffer::ColorB));
         if swapped {
             for f in &mut seq.frames {
                 f.swap_estimates();
             }
-            let n0 = samples.len();
-            model.samples(&seq, &pool, (a.isa, a.ta_clamp), &mut samples)?;
-            firsts.push(n0);
-            origins.extend((0..samples.len() - n0).map(|j| format!("{} frame {j} (estimates swapped)", d.display())));
+            add(&seq, " (estimates swapped)")?;
         }
         if !a.emulate_spp.is_empty() {
             // Back to the first estimate; both scaled towards the reference.
@@ -577,10 +580,7 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             }
             let n = a.emulate_spp[nseqs % a.emulate_spp.len()];
             emulate_spp(&mut seq, n)?;
-            let n0 = samples.len();
-            model.samples(&seq, &pool, (a.isa, a.ta_clamp), &mut samples)?;
-            firsts.push(n0);
-            origins.extend((0..samples.len() - n0).map(|j| format!("{} frame {j} (as {n} spp)", d.display())));
+            add(&seq, &format!(" (as {n} spp)"))?;
         }
         nseqs += 1;
         if (k + 1) % 50 == 0 {
