@@ -106,6 +106,25 @@ pub fn assert_close32(what: &str, a: &[f32], b: &[f32], atol: f32, rtol: f32) {
     }
 }
 
+/// A property test's case count: `n` times the whole number in the
+/// environment variable `MCDENOISE_PROPTEST_SCALE` (unset: 1). CI runs the
+/// counts as written; a larger scale soaks the same properties on more
+/// draws (`MCDENOISE_PROPTEST_SCALE=50 cargo test --release -p
+/// mcdenoise-tests`), which is how a rare failing draw is looked for before
+/// CI meets it.
+///
+/// # Panics
+/// If the variable is set to anything but a positive whole number.
+pub fn cases(n: u32) -> u32 {
+    match std::env::var("MCDENOISE_PROPTEST_SCALE") {
+        Err(_) => n,
+        Ok(v) => match v.trim().parse::<u32>() {
+            Ok(k) if k > 0 => n.saturating_mul(k),
+            _ => panic!("MCDENOISE_PROPTEST_SCALE must be a positive whole number, got '{v}'"),
+        },
+    }
+}
+
 /// The instruction sets to test: every supported one; an unsupported one is
 /// reported as skipped on stderr (once per test process), and is a failure when it is listed in the
 /// environment variable `MCDENOISE_REQUIRE_ISAS` (comma-separated names), so a

@@ -88,7 +88,7 @@ fn run_step(
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 40, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: mcdenoise_tests::cases(40), ..ProptestConfig::default() })]
 
     #[test]
     fn atrous_step_matches_oracle(w in 1usize..60, h in 1usize..40, level in 0u32..5, groups in 1usize..3, var: bool,

@@ -15,7 +15,7 @@ use mcdenoise_tests::{isas_under_test, oracle, Img};
 use proptest::prelude::*;
 
 fn cfg(cases: u32) -> ProptestConfig {
-    ProptestConfig { cases, ..ProptestConfig::default() }
+    ProptestConfig { cases: mcdenoise_tests::cases(cases), ..ProptestConfig::default() }
 }
 
 fn width() -> impl Strategy<Value = usize> {

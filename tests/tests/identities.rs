@@ -13,7 +13,7 @@ fn odd_k(max: usize) -> impl Strategy<Value = usize> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: mcdenoise_tests::cases(64), ..ProptestConfig::default() })]
 
     /// Softmax weights lie in [0, 1] and sum to one within k^2 ulp + 1e-6, at
     /// every pixel including borders: for logits spread like a trained

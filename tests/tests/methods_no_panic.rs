@@ -94,7 +94,7 @@ fn run_sequence(kind: MethodKind, precision: PrecisionKind, layers: usize, frame
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 96, failure_persistence: None, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: mcdenoise_tests::cases(96), failure_persistence: None, ..ProptestConfig::default() })]
 
     #[test]
     fn no_method_panics_on_caller_frames(seq in sequence(), which in 0usize..16) {

@@ -688,8 +688,10 @@ fn ok<T>(r: Result<T, Error>) {
 
 #[test]
 fn no_public_operator_panics_on_caller_input() {
-    let mut runner =
-        proptest::test_runner::TestRunner::new(ProptestConfig { cases: 4000, ..ProptestConfig::default() });
+    let mut runner = proptest::test_runner::TestRunner::new(ProptestConfig {
+        cases: mcdenoise_tests::cases(4000),
+        ..ProptestConfig::default()
+    });
     runner
         .run(&case(), |cs| {
             for isa in isas_under_test() {

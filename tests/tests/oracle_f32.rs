@@ -17,7 +17,7 @@ fn odd_k(max: usize) -> impl Strategy<Value = usize> {
 }
 
 fn cfg(cases: u32) -> ProptestConfig {
-    ProptestConfig { cases, ..ProptestConfig::default() }
+    ProptestConfig { cases: mcdenoise_tests::cases(cases), ..ProptestConfig::default() }
 }
 
 proptest! {

@@ -161,7 +161,7 @@ fn check_conv<P: HostPrecision>(w: usize, h: usize, k: usize, cin: usize, cout: 
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 16, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: mcdenoise_tests::cases(16), ..ProptestConfig::default() })]
 
     #[test]
     fn reduced_precision_unfold(w in 1usize..40, h in 1usize..20, k in prop_oneof![Just(3usize), Just(7), Just(13)], seed: u64) {

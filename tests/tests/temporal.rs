@@ -291,7 +291,7 @@ fn check(c: &Case, motion: bool, band: usize) {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: mcdenoise_tests::cases(24), ..ProptestConfig::default() })]
     #[test]
     fn accumulation_matches_the_f64_oracle(w in 1usize..20, h in 1usize..12, seed in 0u64..1000, band in 1usize..6, motion in any::<bool>()) {
         check(&case(w, h, seed), motion, band);
