@@ -8,8 +8,8 @@
 //! low-frequency blotches on flat walls, 10-20 pixels across
 //! (`tools/blotch.py`, docs/quality.md). This pass filters the output
 //! once more: [`LEVELS`] à-trous steps of the 3-tap B-spline
-//! `(1/4, 1/2, 1/4)` (holes 1, 2 and 4 pixels apart, a 15x15 reach), each
-//! tap weighted by `exp(-t)`,
+//! `(1/4, 1/2, 1/4)` (holes 1, 2, 4 and 8 pixels apart, a 31x31 reach),
+//! each tap weighted by `exp(-t)`,
 //!
 //! ```text
 //! t = |n_p - n_q|^2 / s_n^2 + |a_p - a_q|^2 / s_a^2
@@ -25,8 +25,20 @@
 //! its variance: where the history is long `v` is small and the gate
 //! closes; where it is short the blotches, whose amplitude is a fraction of
 //! the input's noise, are averaged over the surface, and shading, albedo
-//! and geometry edges stop the filter. The three levels are where the
-//! figures stopped improving (docs/quality.md, "The wide pass").
+//! and geometry edges stop the filter.
+//!
+//! From level [`SYMMETRIC_FROM`] on (the fourth, holes 8 apart) the taps
+//! are weighted in mirrored pairs: each tap and the tap opposite it through
+//! the pixel take the larger `t` of the two. A bilateral weight follows
+//! the noise: a pixel inside a bright blotch finds its like on the side
+//! where the blotch goes on and keeps it; weighted in pairs, a tap counts
+//! only as much as its opposite, so a blotch is averaged with both sides of
+//! it, and a linear shading gradient (whose two sides differ from the pixel
+//! alike) keeps its value. On the first three levels plain weights score
+//! better (mirrored pairs there cost 0.1-0.4 dB on the foreign frames:
+//! near edges and texture a pair drops both taps where one would do); the
+//! fourth level with plain weights did not pay (docs/quality.md, "The wide
+//! pass" and "Blotches: noise and bias").
 //!
 //! Everything in exposure-normalised `log1p` colour, as the fallback
 //! ([`crate::methods::fallback`]), so that `denoise(k x) = k denoise(x)`;
@@ -40,9 +52,14 @@ use crate::io::frame::{Buffer, Frame};
 use crate::methods::fallback::{positive_exposure, Noise};
 use crate::methods::{Ctx, Timings};
 
-/// À-trous levels (holes 1, 2 and 4 pixels apart; 4 and 5 levels score
-/// 0.01-0.1 dB lower on the generator's `val` scenes).
-pub const LEVELS: u32 = 3;
+/// À-trous levels (holes 1, 2, 4 and 8 pixels apart). With plain weights a
+/// fourth and fifth level scored 0.01-0.1 dB lower on the generator's
+/// `val` scenes than three; the fourth is weighted in mirrored pairs
+/// ([`SYMMETRIC_FROM`]).
+pub const LEVELS: u32 = 4;
+/// The first level (from 0) whose taps are weighted in mirrored pairs (see
+/// the module).
+pub const SYMMETRIC_FROM: u32 = 3;
 /// The colour gate: a squared colour difference (summed over the
 /// channels) is compared with this multiple of the two pixels' residual
 /// noise variances' sum. Chosen on the generator's `val` scenes (8, 16
@@ -260,7 +277,14 @@ pub fn pass(
             by_row.into_par_iter().enumerate().with_min_len(4).for_each(|(y, mut out)| {
                 // SAFETY: `ctx.isa` is one this CPU has (checked when the
                 // context was made).
-                unsafe { step_row_on(isa, &Step { src, g, inv: &inv, w, h, s: 1 << level }, y, &mut out) }
+                unsafe {
+                    step_row_on(
+                        isa,
+                        &Step { src, g, inv: &inv, w, h, s: 1 << level, sym: level >= SYMMETRIC_FROM },
+                        y,
+                        &mut out,
+                    )
+                }
             });
         });
         std::mem::swap(&mut a, &mut b);
@@ -296,7 +320,7 @@ const LANES: usize = 8;
 /// the row's ends one by one, their taps outside the image left out.
 #[inline(always)]
 fn step_row<const LANES: usize>(st: &Step<'_>, y: usize, out: &mut [&mut [f32]]) {
-    let &Step { src, g, inv, w, h, s } = st;
+    let &Step { src, g, inv, w, h, s, sym } = st;
     let n = w * h;
     let zs = inv.depth / s as f32;
     // The 11 planes (colour 3, variance, albedo 3, normal 3, depth) of row yy.
@@ -333,25 +357,34 @@ fn step_row<const LANES: usize>(st: &Step<'_>, y: usize, out: &mut [&mut [f32]])
     // One pixel, every tap inside the image.
     let pixel = |x: usize| -> [f32; 5] {
         let a: [f32; 11] = core::array::from_fn(|k| p[k][x]);
+        // Each tap's exponent (`None`: outside the image; the centre's 0).
+        let mut t = [[None; 3]; 3];
+        for (dy, row) in rows.iter().enumerate() {
+            let Some((_, q)) = row else { continue };
+            for (dx, td) in t[dy].iter_mut().enumerate() {
+                let qx = x as isize + (dx as isize - 1) * s as isize;
+                if (0..w as isize).contains(&qx) {
+                    let b: [f32; 11] = core::array::from_fn(|k| q[k][qx as usize]);
+                    *td = Some(if dy == 1 && dx == 1 { 0.0 } else { exponent(a, b, inv, zs) });
+                }
+            }
+        }
         let mut acc = [0.0f32; 5];
         for (dy, row) in rows.iter().enumerate() {
             let Some((hy, q)) = row else { continue };
             for (dx, &hx) in TAPS.iter().enumerate() {
-                let qx = x as isize + (dx as isize - 1) * s as isize;
-                if qx < 0 || qx >= w as isize {
-                    continue;
-                }
-                let b: [f32; 11] = core::array::from_fn(|k| q[k][qx as usize]);
-                let wt = if dy == 1 && dx == 1 {
-                    hy * hx
-                } else {
-                    hy * hx * mcdenoise_core::exp_select(-exponent(a, b, inv, zs))
+                let Some(own) = t[dy][dx] else { continue };
+                let qx = (x as isize + (dx as isize - 1) * s as isize) as usize;
+                let e = match t[2 - dy][2 - dx] {
+                    Some(m) if sym => own.max(m),
+                    _ => own,
                 };
-                acc[0] += wt * b[0];
-                acc[1] += wt * b[1];
-                acc[2] += wt * b[2];
+                let wt = if dy == 1 && dx == 1 { hy * hx } else { hy * hx * mcdenoise_core::exp_select(-e) };
+                acc[0] += wt * q[0][qx];
+                acc[1] += wt * q[1][qx];
+                acc[2] += wt * q[2][qx];
                 acc[3] += wt;
-                acc[4] += wt * wt * b[3];
+                acc[4] += wt * wt * q[3][qx];
             }
         }
         acc
@@ -364,23 +397,51 @@ fn step_row<const LANES: usize>(st: &Step<'_>, y: usize, out: &mut [&mut [f32]])
     while x + LANES <= hi {
         let block = |v: &[f32], at: usize| -> [f32; LANES] { v[at..at + LANES].try_into().expect("LANES values") };
         let pa: [[f32; LANES]; 11] = core::array::from_fn(|k| block(p[k], x));
+        // Every tap's exponent per pixel of the block (the block's taps
+        // are inside the image across; a row outside it has none).
+        let mut t = [[[0.0f32; LANES]; 3]; 3];
+        for (dy, row) in rows.iter().enumerate() {
+            let Some((_, q)) = row else { continue };
+            for (dx, td) in t[dy].iter_mut().enumerate() {
+                if dy == 1 && dx == 1 {
+                    continue;
+                }
+                let at = (x as isize + (dx as isize - 1) * s as isize) as usize;
+                let qb: [[f32; LANES]; 11] = core::array::from_fn(|k| block(q[k], at));
+                for (l, tl) in td.iter_mut().enumerate() {
+                    let a: [f32; 11] = core::array::from_fn(|k| pa[k][l]);
+                    let b: [f32; 11] = core::array::from_fn(|k| qb[k][l]);
+                    *tl = exponent(a, b, inv, zs);
+                }
+            }
+        }
+        if sym {
+            // Each mirrored pair of taps inside the image takes the larger
+            // exponent of the two.
+            for (dy, dx) in [(0usize, 0usize), (0, 1), (0, 2), (1, 0)] {
+                if rows[dy].is_some() && rows[2 - dy].is_some() {
+                    let (a, b) = (t[dy][dx], t[2 - dy][2 - dx]);
+                    let m: [f32; LANES] = core::array::from_fn(|l| a[l].max(b[l]));
+                    t[dy][dx] = m;
+                    t[2 - dy][2 - dx] = m;
+                }
+            }
+        }
         let mut acc = [[0.0f32; LANES]; 5];
         for (dy, row) in rows.iter().enumerate() {
             let Some((hy, q)) = row else { continue };
             for (dx, &hx) in TAPS.iter().enumerate() {
                 let at = (x as isize + (dx as isize - 1) * s as isize) as usize;
-                let qb: [[f32; LANES]; 11] = core::array::from_fn(|k| block(q[k], at));
+                let qb: [[f32; LANES]; 4] = core::array::from_fn(|k| block(q[k], at));
                 let hw = hy * hx;
                 let centre = dy == 1 && dx == 1;
                 for l in 0..LANES {
-                    let a: [f32; 11] = core::array::from_fn(|k| pa[k][l]);
-                    let b: [f32; 11] = core::array::from_fn(|k| qb[k][l]);
-                    let wt = if centre { hw } else { hw * mcdenoise_core::exp_select(-exponent(a, b, inv, zs)) };
-                    acc[0][l] += wt * b[0];
-                    acc[1][l] += wt * b[1];
-                    acc[2][l] += wt * b[2];
+                    let wt = if centre { hw } else { hw * mcdenoise_core::exp_select(-t[dy][dx][l]) };
+                    acc[0][l] += wt * qb[0][l];
+                    acc[1][l] += wt * qb[1][l];
+                    acc[2][l] += wt * qb[2][l];
                     acc[3][l] += wt;
-                    acc[4][l] += wt * wt * b[3];
+                    acc[4][l] += wt * wt * qb[3][l];
                 }
             }
         }
@@ -397,7 +458,8 @@ fn step_row<const LANES: usize>(st: &Step<'_>, y: usize, out: &mut [&mut [f32]])
 /// The arguments of one à-trous step over the planes `src` (colour,
 /// residual variance) guided by the planes `g` (albedo, normal, depth),
 /// each `w x h`; `inv` holds the stops' inverse squares (the depth's
-/// inverse); `s` the hole.
+/// inverse); `s` the hole; `sym`: the taps weighted in mirrored pairs
+/// ([`SYMMETRIC_FROM`]).
 struct Step<'a> {
     src: &'a [f32],
     g: &'a [f32],
@@ -405,6 +467,7 @@ struct Step<'a> {
     w: usize,
     h: usize,
     s: usize,
+    sym: bool,
 }
 
 /// [`step_row`] in the build for `isa`: blocks of 8 pixels on AVX2, 16
@@ -454,31 +517,49 @@ mod tests {
     /// One step of the pass at pixel `(x, y)` straight from its
     /// definition, in f64: the 3x3 B-spline taps `s` pixels apart inside the
     /// image, each weighted by `exp(-t)` of the guides' and the colours'
-    /// differences (the centre by its tap alone); the colour and the
-    /// variance (squared normalised weights) out.
+    /// differences (the centre by its tap alone; with `sym`, a tap whose
+    /// opposite through the pixel is inside the image by the larger `t` of
+    /// the two); the colour and the variance (squared normalised weights)
+    /// out.
     #[allow(clippy::too_many_arguments)]
-    fn oracle(src: &[f32], g: &[f32], st: &Stops, w: usize, h: usize, x: usize, y: usize, s: usize) -> [f64; 4] {
+    fn oracle(
+        src: &[f32],
+        g: &[f32],
+        st: &Stops,
+        w: usize,
+        h: usize,
+        x: usize,
+        y: usize,
+        s: usize,
+        sym: bool,
+    ) -> [f64; 4] {
         let n = w * h;
         let at = |v: &[f32], k: usize, p: usize| v[k * n + p] as f64;
         let p = y * w + x;
+        let inside = |dx: i64, dy: i64| -> Option<usize> {
+            let (qx, qy) = (x as i64 + dx * s as i64, y as i64 + dy * s as i64);
+            (qx >= 0 && qy >= 0 && qx < w as i64 && qy < h as i64).then(|| qy as usize * w + qx as usize)
+        };
+        let t = |q: usize| -> f64 {
+            let d2 = |k0: usize, v: &[f32]| (k0..k0 + 3).map(|k| (at(v, k, p) - at(v, k, q)).powi(2)).sum::<f64>();
+            d2(3, g) / (st.normal as f64).powi(2)
+                + d2(0, g) / (st.albedo as f64).powi(2)
+                + (at(g, 6, p) - at(g, 6, q)).abs() / (st.depth as f64 * s as f64 * at(g, 6, p).max(1e-3))
+                + d2(0, src) / (at(src, 3, p) + at(src, 3, q) + 1e-12)
+        };
         let (mut acc, mut ws, mut vs) = ([0.0f64; 3], 0.0f64, 0.0f64);
         for dy in -1i64..=1 {
             for dx in -1i64..=1 {
-                let (qx, qy) = (x as i64 + dx * s as i64, y as i64 + dy * s as i64);
-                if qx < 0 || qy < 0 || qx >= w as i64 || qy >= h as i64 {
-                    continue;
-                }
-                let q = qy as usize * w + qx as usize;
+                let Some(q) = inside(dx, dy) else { continue };
                 let tap = [0.25, 0.5, 0.25][(dy + 1) as usize] * [0.25, 0.5, 0.25][(dx + 1) as usize];
                 let mut wt = tap;
                 if q != p {
-                    let d2 =
-                        |k0: usize, v: &[f32]| (k0..k0 + 3).map(|k| (at(v, k, p) - at(v, k, q)).powi(2)).sum::<f64>();
-                    let t = d2(3, g) / (st.normal as f64).powi(2)
-                        + d2(0, g) / (st.albedo as f64).powi(2)
-                        + (at(g, 6, p) - at(g, 6, q)).abs() / (st.depth as f64 * s as f64 * at(g, 6, p).max(1e-3))
-                        + d2(0, src) / (at(src, 3, p) + at(src, 3, q) + 1e-12);
-                    wt *= (-t).exp();
+                    let own = t(q);
+                    let e = match inside(-dx, -dy) {
+                        Some(m) if sym => own.max(t(m)),
+                        _ => own,
+                    };
+                    wt *= (-e).exp();
                 }
                 for (k, a) in acc.iter_mut().enumerate() {
                     *a += wt * at(src, k, q);
@@ -492,7 +573,8 @@ mod tests {
 
     /// Every row of a step through [`step_row`] (and its builds for AVX2 and
     /// AVX-512 where this CPU has them) against the f64 oracle, at holes 1,
-    /// 2 and 4 (blocks of 8 and 16 pixels and the rows' ends) on a
+    /// 2, 4 and 8, with plain weights and in mirrored pairs (blocks of 8 and
+    /// 16 pixels, the rows' ends, rows whose taps leave the image) on a
     /// small random image whose guides differ from pixel to pixel by about
     /// their stops (so that the weights spread over their range).
     #[test]
@@ -518,19 +600,19 @@ mod tests {
         let paths: Vec<Isa> = Isa::ALL.iter().copied().filter(|i| i.check().is_ok()).collect();
         let mut spread = (f64::MAX, 0.0f64);
         for isa in paths {
-            for s in [1usize, 2, 4] {
+            for (s, sym) in [(1usize, false), (2, false), (4, false), (8, false), (1, true), (4, true), (8, true)] {
                 let mut out = vec![0.0f32; 4 * w];
                 for y in 0..h {
                     let mut rows: Vec<&mut [f32]> = out.chunks_mut(w).collect();
                     // SAFETY: `paths` holds the ISAs this CPU has.
-                    unsafe { step_row_on(isa, &Step { src: &src, g: &g, inv: &inv, w, h, s }, y, &mut rows) };
+                    unsafe { step_row_on(isa, &Step { src: &src, g: &g, inv: &inv, w, h, s, sym }, y, &mut rows) };
                     for x in 0..w {
-                        let want = oracle(&src, &g, &st, w, h, x, y, s);
+                        let want = oracle(&src, &g, &st, w, h, x, y, s, sym);
                         for k in 0..4 {
                             let got = out[k * w + x] as f64;
                             assert!(
                                 (got - want[k]).abs() <= 2e-5 * want[k].abs().max(1e-2),
-                                "{isa:?}, hole {s}, pixel ({x}, {y}), plane {k}: {got} against {}",
+                                "{isa:?}, hole {s}, pairs {sym}, pixel ({x}, {y}), plane {k}: {got} against {}",
                                 want[k]
                             );
                         }
