@@ -5,8 +5,8 @@ flat regions, over independent renders of the same frames.
     blotch_split.py REF_SEQ OUT LABEL [LABEL ...] [--frames 0,-1] [--edge 8]
 
 REF_SEQ is a rendered sequence whose ref/ frames are the references (e.g.
-/work/data/foreign/lounge_pan; the realisations may be its first few
-frames, and --frames indexes theirs); OUT holds the denoised realisations,
+/work/data/foreign/lounge_pan; the realisations may hold some of its frames,
+rendered with render.py --frame-range, and --frames indexes theirs); OUT holds the denoised realisations,
 OUT/LABEL_K/frame_NNNN.exr for K = 1..N (N: as many as exist for the
 first label), each the same frames rendered with another seed and
 denoised (tools/blotch-split.sh makes them). The error is taken as
@@ -21,12 +21,17 @@ the flat pixels (the reference luminance's 7x7 standard deviation under
   - bias: the band of the mean's difference from the reference, with the
     mean's own share of the noise taken out (total^2 ~ noise^2 + bias^2:
     what every realisation has in common, the same picture whatever the
-    seed);
+    seed; the reference's own noise counts here, small at 1024 spp);
+
+(the squares are unbiased estimates over independent realisations; their
+square roots, printed, are a little low, and a bias under the noise's share
+is printed as 0);
 
 each over all flat pixels, the flat pixels within --edge pixels of an edge
 of the frame's normal or albedo (a normal difference over 0.1 or an albedo
-difference over 0.05 to a neighbour; the G-buffer of REF_SEQ's frame,
-which every realisation shares), and the flat pixels farther inside.
+difference over 0.05 to a neighbour, in the G-buffer of REF_SEQ's frame;
+each realisation's own differs from it only by its AOVs' sampling noise),
+and the flat pixels farther inside.
 --picture writes the first frame's reference and each label's bias (what
 the realisations share), to look at where it is. Reads EXR with
 tools/exrio.py (numpy only).
@@ -99,9 +104,13 @@ def main():
         if not os.path.exists(os.path.join(refdir, name)):
             sys.exit('blotch_split.py: no reference %s' % os.path.join(refdir, name))
     try:
-        frames = sorted({int(v) % len(names) for v in a.frames.split(',')})
+        asked = [int(v) for v in a.frames.split(',')]
     except ValueError:
         sys.exit('blotch_split.py: --frames takes integers separated by commas')
+    for v in asked:
+        if not -len(names) <= v < len(names):
+            sys.exit('blotch_split.py: no frame %d (the realisations have %d)' % (v, len(names)))
+    frames = sorted({v % len(names) for v in asked})
     for k in frames:
         name = names[k]
         ref = np.stack(display(os.path.join(refdir, name)))

@@ -35,10 +35,10 @@
 //! only as much as its opposite, so a blotch is averaged with both sides of
 //! it, and a linear shading gradient (whose two sides differ from the pixel
 //! alike) keeps its value. On the first three levels plain weights score
-//! better (mirrored pairs there cost 0.1-0.4 dB on the foreign frames:
-//! near edges and texture a pair drops both taps where one would do); the
-//! fourth level with plain weights did not pay (docs/quality.md, "The wide
-//! pass" and "Blotches: noise and bias").
+//! better (mirrored pairs on every level cost 0.2-0.5 dB on three of four
+//! foreign first frames: near edges and texture a pair drops both taps
+//! where one would do); the fourth level with plain weights did not pay
+//! (docs/quality.md, "The fourth level" and "Blotches: noise and bias").
 //!
 //! Everything in exposure-normalised `log1p` colour, as the fallback
 //! ([`crate::methods::fallback`]), so that `denoise(k x) = k denoise(x)`;
@@ -52,10 +52,10 @@ use crate::io::frame::{Buffer, Frame};
 use crate::methods::fallback::{positive_exposure, Noise};
 use crate::methods::{Ctx, Timings};
 
-/// À-trous levels (holes 1, 2, 4 and 8 pixels apart). With plain weights a
-/// fourth and fifth level scored 0.01-0.1 dB lower on the generator's
-/// `val` scenes than three; the fourth is weighted in mirrored pairs
-/// ([`SYMMETRIC_FROM`]).
+/// À-trous levels (holes 1, 2, 4 and 8 pixels apart). With plain weights
+/// four and five levels scored lower than three on the generator's `val`
+/// scenes (docs/quality.md, "A wider reach"); the fourth is weighted in
+/// mirrored pairs ([`SYMMETRIC_FROM`]).
 pub const LEVELS: u32 = 4;
 /// The first level (from 0) whose taps are weighted in mirrored pairs (see
 /// the module).
@@ -354,7 +354,7 @@ fn step_row<const LANES: usize>(st: &Step<'_>, y: usize, out: &mut [&mut [f32]])
         out[2][x] = acc[2] * r;
         out[3][x] = acc[4] * r * r;
     };
-    // One pixel, every tap inside the image.
+    // One pixel (near the row's ends: the taps outside the image left out).
     let pixel = |x: usize| -> [f32; 5] {
         let a: [f32; 11] = core::array::from_fn(|k| p[k][x]);
         // Each tap's exponent (`None`: outside the image; the centre's 0).
