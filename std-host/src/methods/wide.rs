@@ -574,12 +574,13 @@ mod tests {
     /// Every row of a step through [`step_row`] (and its builds for AVX2 and
     /// AVX-512 where this CPU has them) against the f64 oracle, at holes 1,
     /// 2, 4 and 8, with plain weights and in mirrored pairs (blocks of 8 and
-    /// 16 pixels, the rows' ends, rows whose taps leave the image) on a
+    /// 16 pixels, the rows' ends, rows whose taps leave the image; 19 rows,
+    /// so that at hole 8 the middle three pair every tap) on a
     /// small random image whose guides differ from pixel to pixel by about
     /// their stops (so that the weights spread over their range).
     #[test]
     fn a_step_matches_an_f64_oracle() {
-        let (w, h) = (43, 13);
+        let (w, h) = (43, 19);
         let n = w * h;
         let mut s = 7u32;
         let mut src: Vec<f32> = (0..4 * n).map(|_| lcg(&mut s)).collect();
