@@ -349,6 +349,11 @@ struct SettingsCli {
     /// WSKP and AFN]
     #[arg(long, value_name = "Z", value_parser = firefly)]
     ta_reject: Option<f32>,
+    /// Temporal accumulation (ta, WSKP, AFN): the history rejection compares the means over 9x9
+    /// windows (1), and over 17x17 (2) and 33x33 (3; at 1.5 times Z) as well: a wider mean finds a
+    /// lag too small for a narrower one, and lets more history go [default: 1; 3 for WSKP and AFN]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u8).range(1..=3))]
+    ta_reject_scales: Option<u8>,
     /// A frame with a second estimate B.* of its pixels: 'mean' uses every sample (none, ta, WSKP
     /// and AFN filter (A + B) / 2; atrous, sure-atrous and cross read both as always); 'first'
     /// reads A alone, as if B.* were not there (to compare with a denoiser given one estimate;
@@ -413,6 +418,7 @@ impl SettingsCli {
         s.firefly_clamp = self.firefly_clamp;
         s.ta_clamp = self.ta_clamp;
         s.ta_reject = self.ta_reject;
+        s.ta_reject_scales = self.ta_reject_scales.map(usize::from);
         s.layers = self.layers.unwrap_or_else(|| layers_of(self.weights.as_deref()));
         s.weights = self.weights;
         s.seed = self.seed;

@@ -167,6 +167,15 @@ fn settings_of(
                 "firefly_clamp" => s.firefly_clamp = Some(real(0.0, 1e6, "a number from 0 (off) up to 1e6")?),
                 "ta_clamp" => s.ta_clamp = Some(real(0.0, 1e6, "a number from 0 (off) up to 1e6")?),
                 "ta_reject" => s.ta_reject = Some(real(0.0, 1e6, "a number from 0 (off) up to 1e6")?),
+                "ta_reject_scales" => {
+                    let k: usize = v.extract()?;
+                    if !(1..=3).contains(&k) {
+                        return Err(PyValueError::new_err(format!(
+                            "ta_reject_scales: expected 1 (9x9 means), 2 (and 17x17) or 3 (and 33x33), got {k}"
+                        )));
+                    }
+                    s.ta_reject_scales = Some(k);
+                }
                 "pair" => {
                     let name: String = v.extract()?;
                     s.pair = methods::PairUse::from_name(&name).ok_or_else(|| {
@@ -187,7 +196,7 @@ fn settings_of(
                 other => {
                     return Err(PyTypeError::new_err(format!(
                         "unexpected keyword argument '{other}' (options: layers, weights, refine, fallback, \
-                         phi_color, firefly_clamp, ta_clamp, ta_reject, pair, seed, cross_lr, cross_spatial_only, load_state, \
+                         phi_color, firefly_clamp, ta_clamp, ta_reject, ta_reject_scales, pair, seed, cross_lr, cross_spatial_only, load_state, \
                          save_state, isa)"
                     )))
                 }
@@ -238,7 +247,8 @@ fn to_array<'py>(py: Python<'py>, planes: Vec<f32>, w: usize, h: usize) -> Bound
 /// train`), refine (AFN, default True), fallback (WSKP, AFN and cross,
 /// default True), phi_color, firefly_clamp (à-trous), ta_clamp (ta, WSKP, AFN:
 /// the accumulation's history clamp), ta_reject (ta, WSKP, AFN: the history
-/// rejection's threshold, default 3, 2 for WSKP and AFN; 0 off), pair ("mean", the default: with a second
+/// rejection's threshold, default 3, 2 for WSKP and AFN; 0 off), ta_reject_scales (its
+/// window means: 1 for 9x9, 2 and 17x17, 3 and 33x33; default 1, 3 for WSKP and AFN), pair ("mean", the default: with a second
 /// estimate, none, ta, WSKP and AFN filter the mean of the two; "first":
 /// the second is ignored, cross refuses it), seed, cross_lr,
 /// cross_spatial_only, load_state, save_state (cross), isa.
@@ -412,7 +422,8 @@ impl PyDenoiser {
 ///            `mcdenoise train`; default: the bundled weights), refine (AFN,
 ///            default True), fallback (WSKP, AFN and cross, default True), phi_color and firefly_clamp (à-trous),
 ///            ta_clamp (ta, WSKP, AFN: the history clamp), ta_reject (ta,
-///            WSKP, AFN: the history rejection, default 3, 2 for WSKP and AFN; 0 off), pair ("mean" or
+///            WSKP, AFN: the history rejection, default 3, 2 for WSKP and AFN; 0 off),
+///            ta_reject_scales (its window means: 1, 2 or 3 sizes; default 1, 3 for WSKP and AFN), pair ("mean" or
 ///            "first": what a second estimate is used for), seed,
 ///            cross_lr and cross_spatial_only (cross), isa (scalar, avx2,
 ///            avx512)

@@ -252,3 +252,18 @@ def test_ta_reject_matches_the_command_line():
             assert np.array_equal(got, want), "ta_reject=0 frame %d differs from the CLI" % i
             differs |= not np.array_equal(on.denoise(f["color"], **buffers(f)), got)
         assert differs, "the rejection changes some frame of the sample"
+
+
+def test_ta_reject_scales_matches_the_command_line():
+    # ta at three scales as --ta-reject-scales 3 gives it; a count outside
+    # 1 to 3 is refused, naming the keyword.
+    with tempfile.TemporaryDirectory() as out:
+        subprocess.run([str(BIN), "denoise", "--quiet", "--float", "--threads", "2", "--method", "ta",
+                        "--ta-reject-scales", "3", str(SAMPLE), "-o", out], check=True)
+        d = mcdenoise.Denoiser("ta", threads=2, ta_reject_scales=3)
+        for i, f in enumerate(frames()):
+            got = d.denoise(f["color"], **buffers(f))
+            want = read_rgb(pathlib.Path(out) / ("frame_%04d.exr" % i))
+            assert np.array_equal(got, want), "ta_reject_scales=3 frame %d differs from the CLI" % i
+    with pytest.raises(ValueError, match="ta_reject_scales: expected"):
+        mcdenoise.Denoiser("ta", ta_reject_scales=4)

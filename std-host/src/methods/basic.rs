@@ -121,12 +121,41 @@ pub const TA_REJECT: f32 = 3.0;
 pub const LEARNED_TA_REJECT: f32 = 2.0;
 /// The rejection's window radius (9x9 means).
 pub const TA_REJECT_RADIUS: usize = 4;
+/// The rejection's scales ([`reject_stale`]): the radius of the windows
+/// whose means are compared and the multiple of the threshold used there.
+/// The first is the 9x9 means' (`TA_REJECT_RADIUS`); `--ta-reject-scales k`
+/// tests the first `k`.
+pub const REJECT_SCALES: [(usize, f32); 3] = [(TA_REJECT_RADIUS, 1.0), (8, 1.0), (16, 1.5)];
+/// The scales `ta` tests at: the 9x9 means alone. `ta`'s PSNR is its
+/// noise, and every history let go adds to it (on the foreign moving light
+/// 22.71 dB with one scale, 22.41 with two, 21.68 with three).
+pub const TA_REJECT_SCALES: usize = 1;
+/// The scales WSKP and AFN test at: 9x9, 17x17 and 33x33 means (the last
+/// at 1.5 times the threshold). A light that moves leaves a lag spread
+/// thin over a wall, under the 9x9 means' standard error (a ninth of a
+/// pixel's noise) yet over a 33x33 mean's (a 33rd); a network filters the
+/// noise of a history let go, not its lag. Chosen on the 50 rendered
+/// training scenes with a moving light (docs/quality.md, "The history
+/// rejection at three scales").
+pub const LEARNED_TA_REJECT_SCALES: usize = 3;
 /// The rejection's name in plans.
-pub const REJECT_STAGE: &str = "history rejection (9x9 means against the frame's noise)";
-/// Bytes per pixel the rejection holds for a moment: the accumulated
-/// colour and counts in f32, three statistics planes and the box sums'
-/// copies of them (the three run at once).
-pub const REJECT_TEMP_BYTES: u64 = 10 * 4;
+pub const REJECT_STAGE: &str = "history rejection (window means against the frame's noise)";
+/// Bytes per pixel the rejection holds for a moment (at most, for any
+/// number of scales): the accumulated colour in f32, three statistics
+/// planes, a copy of them summed for each scale but the last, the box
+/// sums' copies of those (the three run at once) and the blend.
+pub const REJECT_TEMP_BYTES: u64 = 13 * 4;
+
+/// Checks the number of the history rejection's scales given by the user.
+pub fn check_reject_scales(k: usize) -> Result<usize> {
+    if (1..=REJECT_SCALES.len()).contains(&k) {
+        Ok(k)
+    } else {
+        Err(HostError::Usage(format!(
+            "--ta-reject-scales: expected 1 (9x9 means), 2 (and 17x17) or 3 (and 33x33); got {k}"
+        )))
+    }
+}
 
 /// Checks the history rejection's threshold given by the user.
 pub fn check_reject(z: f32) -> Result<f32> {
@@ -158,7 +187,10 @@ fn check_off_to_1e6(v: f32, option: &str, what: &str, unit: &str) -> Result<f32>
 /// moves towards the frame by `beta = clamp(z / z0 - 1, 0, 1)` and the
 /// history counts shrink by `1 - beta`. A static scene's windows stay
 /// under `z0` (about 2 % of the pixels of a lounge pan at `z0 = 3`);
-/// a moving light's over it.
+/// a moving light's over it. With several `scales` ([`REJECT_SCALES`]:
+/// window radius, multiple of `z0`) each tests its own window means and
+/// `beta` is the largest of theirs: a wider window's mean has a smaller
+/// standard error and finds a lag too small for a 9x9 one.
 #[allow(clippy::too_many_arguments)]
 pub fn reject_stale<P: HostPrecision>(
     pool: &crate::runtime::par::Pool,
@@ -167,11 +199,12 @@ pub fn reject_stale<P: HostPrecision>(
     w: usize,
     h: usize,
     z0: f32,
+    scales: &[(usize, f32)],
     out: &mut Planes<P::Store>,
     hist: &mut Planes<P::Store>,
 ) {
     let n = w * h;
-    if n == 0 || z0 <= 0.0 || a.len() < 3 * n || out.data.len() != 3 * n || hist.data.len() != n {
+    if n == 0 || z0 <= 0.0 || scales.is_empty() || a.len() < 3 * n || out.data.len() != 3 * n || hist.data.len() != n {
         return;
     }
     let b = b.filter(|p| p.b.len() >= 3 * n);
@@ -213,28 +246,48 @@ pub fn reject_stale<P: HostPrecision>(
             }
         });
     }
-    let r = TA_REJECT_RADIUS;
-    let sums = |x: &mut Vec<f32>| crate::methods::features::box_sum(x, w, h, r);
-    pool.install(|| {
-        rayon::join(|| sums(&mut mf), || rayon::join(|| sums(&mut v), || sums(&mut mt)));
-    });
-    let span = |p: usize, len: usize| crate::methods::features::window_span(p, len, r);
+    // Each scale's blend towards the frame; `beta` keeps the largest.
+    let mut beta = vec![0.0f32; n];
+    let last = scales.len() - 1;
+    for (k, &(r, m)) in scales.iter().enumerate() {
+        let z0 = z0 * m;
+        // The last scale sums the planes themselves.
+        let (mut sf, mut sv, mut st) = if k == last {
+            (std::mem::take(&mut mf), std::mem::take(&mut v), std::mem::take(&mut mt))
+        } else {
+            (mf.clone(), v.clone(), mt.clone())
+        };
+        let sums = |x: &mut Vec<f32>| crate::methods::features::box_sum(x, w, h, r);
+        pool.install(|| {
+            rayon::join(|| sums(&mut sf), || rayon::join(|| sums(&mut sv), || sums(&mut st)));
+        });
+        let span = |p: usize, len: usize| crate::methods::features::window_span(p, len, r);
+        let (sf, sv, st) = (&sf, &sv, &st);
+        pool.planes(vec![&mut beta[..]], RUN, |start, runs| {
+            let mut at = crate::methods::features::Walk::new(start, w);
+            for b in runs[0].iter_mut() {
+                let (p, x, y) = at.next();
+                let cnt = span(x, w) * span(y, h);
+                let (f, t) = (sf[p] / cnt, st[p] / cnt);
+                // The frame mean's variance: the window's mean of the
+                // per-pixel variance over the count.
+                let var = sv[p] / cnt / cnt;
+                let z = (f - t).abs() / var.max(1e-20).sqrt();
+                if z.is_finite() {
+                    *b = b.max((z / z0 - 1.0).clamp(0.0, 1.0));
+                }
+            }
+        });
+    }
     let mut hv = vec![0.0f32; n];
     P::decode(&hist.data, &mut hv, hist.frac);
-    let (mf, v, mt) = (&mf, &v, &mt);
+    let beta = &beta;
     let mut planes: Vec<&mut [f32]> = oc.chunks_mut(n).collect();
     planes.push(&mut hv[..]);
     pool.planes(planes, RUN, |start, runs| {
-        let mut at = crate::methods::features::Walk::new(start, w);
         for j in 0..runs[0].len() {
-            let (p, x, y) = at.next();
-            let cnt = span(x, w) * span(y, h);
-            let (f, t) = (mf[p] / cnt, mt[p] / cnt);
-            // The frame mean's variance: the window's mean of the per-pixel
-            // variance over the count.
-            let var = v[p] / cnt / cnt;
-            let z = (f - t).abs() / var.max(1e-20).sqrt();
-            let beta = if z.is_finite() { (z / z0 - 1.0).clamp(0.0, 1.0) } else { 0.0 };
+            let p = start + j;
+            let beta = beta[p];
             if beta > 0.0 {
                 for (ch, run) in runs[..3].iter_mut().enumerate() {
                     let cur = a[ch * n + p];
@@ -338,6 +391,8 @@ pub struct TemporalAccumulation<P: HostPrecision> {
     prev: Option<History<P>>,
     /// The history rejection's threshold ([`reject_stale`]; 0: off).
     reject: f32,
+    /// The first this many of [`REJECT_SCALES`] are tested.
+    reject_scales: usize,
 }
 
 struct History<P: HostPrecision> {
@@ -389,6 +444,7 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
             use_albedo,
             prev: None,
             reject: TA_REJECT,
+            reject_scales: TA_REJECT_SCALES,
         })
     }
 
@@ -400,6 +456,16 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
     pub fn with_reject(mut self, z: f32) -> Result<Self> {
         self.reject = check_reject(z)?;
         reject_plan(&mut self.plan, self.reject);
+        Ok(self)
+    }
+
+    /// With the history rejection testing the first `k` of
+    /// [`REJECT_SCALES`] (1: the 9x9 means alone).
+    ///
+    /// # Errors
+    /// `k` outside 1 to 3.
+    pub fn with_reject_scales(mut self, k: usize) -> Result<Self> {
+        self.reject_scales = check_reject_scales(k)?;
         Ok(self)
     }
 
@@ -500,8 +566,9 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
                 if self.reject > 0.0 {
                     if let Some(a) = f.get(Buffer::Color) {
                         let z0 = self.reject;
+                        let scales = &REJECT_SCALES[..self.reject_scales];
                         t.time("history rejection", || {
-                            reject_stale::<P>(&ctx.pool, a, f.pair(), w, h, z0, &mut out, &mut hist)
+                            reject_stale::<P>(&ctx.pool, a, f.pair(), w, h, z0, scales, &mut out, &mut hist)
                         });
                     }
                 }
@@ -580,7 +647,7 @@ mod tests {
                 P::encode(&hist_c, &mut out.data, frac);
                 let mut hist = Planes::<P::Store>::new(1, w, h).with_frac(P::frac_or_zero(HISTORY_FRAC));
                 P::encode(&vec![8.0f32; n], &mut hist.data, hist.frac);
-                reject_stale::<P>(&pool, &a, b, w, h, TA_REJECT, &mut out, &mut hist);
+                reject_stale::<P>(&pool, &a, b, w, h, TA_REJECT, &REJECT_SCALES[..1], &mut out, &mut hist);
                 let (oc, hv) = (out.decode::<P>(), hist.decode::<P>());
                 let (mut kept, mut gone, mut half, mut left, mut right) = (0usize, 0usize, 0usize, 0usize, 0usize);
                 for y in 0..h {
@@ -616,6 +683,59 @@ mod tests {
             run::<F32>(pair);
             run::<mcdenoise_core::Fixed>(pair);
         }
+    }
+
+    /// The rejection's wider scales, in f32 and fixed point, one estimate:
+    /// a history 15 % too bright over the right half (a light's lag, at
+    /// 1.8 standard errors of a 9x9 mean of 1-spp noise, 3.4 of a 17x17 one
+    /// and 6.6 of a 33x33 one) mostly stays with the 9x9 means alone and
+    /// mostly goes with three scales, while a static history (the left
+    /// half) is kept as with one scale.
+    #[test]
+    fn wider_scales_let_a_small_lag_go_and_keep_a_static_history() {
+        fn run<P: HostPrecision>() {
+            let (w, h) = (128, 96);
+            let n = w * h;
+            let pool = crate::runtime::par::Pool::new(2).unwrap();
+            let level = vec![0.5f32; 3 * n];
+            let a = noisy(&level, 11);
+            let calm: Vec<f32> = level.iter().zip(noisy(&level, 12)).map(|(&l, v)| l + 0.2 * (v - l)).collect();
+            let hist_c: Vec<f32> =
+                calm.iter().enumerate().map(|(i, &v)| if (i % n) % w >= w / 2 { v * 1.15 } else { v }).collect();
+            // (moved towards the frame: its mean over the right half's
+            // pixels whose 33x33 windows are whole and inside it; kept: the
+            // share of the left half's pixels as far inside left alone)
+            let measure = |k: usize| {
+                let frac = P::frac_or_zero(P::choose_frac(&hist_c, Kind::Image));
+                let mut out = Planes::<P::Store>::new(3, w, h).with_frac(frac);
+                P::encode(&hist_c, &mut out.data, frac);
+                let mut hist = Planes::<P::Store>::new(1, w, h).with_frac(P::frac_or_zero(HISTORY_FRAC));
+                P::encode(&vec![8.0f32; n], &mut hist.data, hist.frac);
+                reject_stale::<P>(&pool, &a, None, w, h, LEARNED_TA_REJECT, &REJECT_SCALES[..k], &mut out, &mut hist);
+                let hv = hist.decode::<P>();
+                let (mut moved, mut right, mut kept, mut left) = (0.0f64, 0usize, 0usize, 0usize);
+                for y in 16..h - 16 {
+                    for x in (16..w - 16).filter(|&x| x.abs_diff(w / 2) > 17) {
+                        let p = y * w + x;
+                        if x >= w / 2 {
+                            right += 1;
+                            moved += 1.0 - f64::from(hv[p]) / 8.0;
+                        } else {
+                            left += 1;
+                            kept += usize::from(hv[p] == 8.0);
+                        }
+                    }
+                }
+                (moved / right as f64, kept as f64 / left as f64)
+            };
+            let (moved1, kept1) = measure(1);
+            let (moved3, kept3) = measure(3);
+            assert!(moved1 < 0.3, "one scale moved {moved1} of the lag");
+            assert!(moved3 > 0.8, "three scales moved {moved3} of the lag");
+            assert!(kept3 > 0.9 && kept3 > kept1 - 0.03, "static history kept: {kept3} (one scale {kept1})");
+        }
+        run::<F32>();
+        run::<mcdenoise_core::Fixed>();
     }
 
     /// The one-estimate noise variance against its definition in f64, and

@@ -29,9 +29,9 @@ pub mod wskp;
 pub use atrous::Atrous;
 
 pub use basic::{
-    check_clamp, check_reject, clamp_plan, reject_plan, reject_stale, scene_scale, ta_clamp_for, ta_clamp_of,
-    Passthrough, TemporalAccumulation, CLAMP_STAGE, LEARNED_TA_REJECT, POSITION_TOLERANCE, REJECT_STAGE, TA_CLAMP,
-    TA_CLAMP_RADIUS, TA_REJECT,
+    check_clamp, check_reject, check_reject_scales, clamp_plan, reject_plan, reject_stale, scene_scale, ta_clamp_for,
+    ta_clamp_of, Passthrough, TemporalAccumulation, CLAMP_STAGE, LEARNED_TA_REJECT, LEARNED_TA_REJECT_SCALES,
+    POSITION_TOLERANCE, REJECT_SCALES, REJECT_STAGE, TA_CLAMP, TA_CLAMP_RADIUS, TA_REJECT, TA_REJECT_SCALES,
 };
 
 /// The methods, by command-line name.
@@ -249,6 +249,10 @@ pub struct Settings {
     /// frame's 9x9 mean ([`reject_stale`]; 0: off; `None`: [`TA_REJECT`],
     /// WSKP's and AFN's [`LEARNED_TA_REJECT`]).
     pub ta_reject: Option<f32>,
+    /// How many of the history rejection's scales ([`REJECT_SCALES`]: 9x9,
+    /// 17x17 and 33x33 means) it tests (`None`: [`TA_REJECT_SCALES`],
+    /// WSKP's and AFN's [`LEARNED_TA_REJECT_SCALES`]).
+    pub ta_reject_scales: Option<usize>,
     /// Online methods: the seed of the initial weights.
     pub seed: u64,
     /// Online methods: write the network's state here after every frame.
@@ -335,6 +339,7 @@ impl Default for Settings {
             wide: true,
             ta_clamp: None,
             ta_reject: None,
+            ta_reject_scales: None,
             seed: crate::methods::cross::SEED,
             save_state: None,
             load_state: None,
@@ -449,7 +454,8 @@ fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Fr
         MethodKind::Ta => Box::new(
             TemporalAccumulation::<P>::new(first, true)?
                 .with_clamp(settings.ta_clamp.unwrap_or(basic::TA_CLAMP))?
-                .with_reject(settings.ta_reject.unwrap_or(basic::TA_REJECT))?,
+                .with_reject(settings.ta_reject.unwrap_or(basic::TA_REJECT))?
+                .with_reject_scales(settings.ta_reject_scales.unwrap_or(basic::TA_REJECT_SCALES))?,
         ),
         MethodKind::Atrous => Box::new(Atrous::<P>::new(first, false, settings)?),
         MethodKind::SureAtrous => Box::new(Atrous::<P>::new(first, true, settings)?),
@@ -465,6 +471,9 @@ fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Fr
             if let Some(z) = settings.ta_reject {
                 m = m.with_ta_reject(z)?;
             }
+            if let Some(k) = settings.ta_reject_scales {
+                m = m.with_ta_reject_scales(k)?;
+            }
             Box::new(m)
         }
         MethodKind::Afn => {
@@ -479,6 +488,9 @@ fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Fr
             }
             if let Some(z) = settings.ta_reject {
                 m = m.with_ta_reject(z)?;
+            }
+            if let Some(k) = settings.ta_reject_scales {
+                m = m.with_ta_reject_scales(k)?;
             }
             Box::new(m)
         }

@@ -542,6 +542,14 @@ impl<P: HostPrecision> Afn<P> {
         Ok(self)
     }
 
+    /// With the accumulation's history rejection testing the first `k`
+    /// of [`crate::methods::basic::REJECT_SCALES`] (default
+    /// [`crate::methods::basic::LEARNED_TA_REJECT_SCALES`]).
+    pub fn with_ta_reject_scales(mut self, k: usize) -> Result<Self> {
+        self.ta = self.ta.with_reject_scales(k)?;
+        Ok(self)
+    }
+
     /// Memory per frame (see [`crate::runtime::memory`]): the accumulation, the f32
     /// buffers kept, the kernel predictor's tensors (kept for the next frame:
     /// full scale 12 + 44 + 16 planes, half 24 + 56 + 32 + 49, quarter 32 +
@@ -617,7 +625,9 @@ impl<P: HostPrecision> Afn<P> {
     /// With parameters in hand (kernel predictor, refinement).
     pub fn from_params(first: &Frame, params: (Vec<f32>, Vec<f32>), refine: bool, variant: Variant) -> Result<Self> {
         check_inputs(first)?;
-        let ta = TemporalAccumulation::<P>::new(first, false)?.with_reject(crate::methods::basic::LEARNED_TA_REJECT)?;
+        let ta = TemporalAccumulation::<P>::new(first, false)?
+            .with_reject(crate::methods::basic::LEARNED_TA_REJECT)?
+            .with_reject_scales(crate::methods::basic::LEARNED_TA_REJECT_SCALES)?;
         let mut plan = ta.plan().clone();
         match variant {
             Variant::Fusion => plan.built.extend([

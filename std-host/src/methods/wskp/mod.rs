@@ -427,6 +427,14 @@ impl<P: HostPrecision> Wskp<P> {
         Ok(self)
     }
 
+    /// With the accumulation's history rejection testing the first `k`
+    /// of [`crate::methods::basic::REJECT_SCALES`] (default
+    /// [`crate::methods::basic::LEARNED_TA_REJECT_SCALES`]).
+    pub fn with_ta_reject_scales(mut self, k: usize) -> Result<Self> {
+        self.ta = self.ta.with_reject_scales(k)?;
+        Ok(self)
+    }
+
     /// Memory per frame (see [`crate::runtime::memory`]): the accumulation, the f32
     /// buffers kept (and their copies in another storage), the network's
     /// tensors (kept for the next frame), the output. The first frame in
@@ -484,7 +492,9 @@ impl<P: HostPrecision> Wskp<P> {
     /// For a sequence starting with `first`, with parameters in hand.
     pub fn from_params(first: &Frame, net: Net, params: Vec<f32>, layers: usize, sizes: Sizes) -> Result<Self> {
         check_inputs(first)?;
-        let ta = TemporalAccumulation::<P>::new(first, false)?.with_reject(crate::methods::basic::LEARNED_TA_REJECT)?;
+        let ta = TemporalAccumulation::<P>::new(first, false)?
+            .with_reject(crate::methods::basic::LEARNED_TA_REJECT)?
+            .with_reject_scales(crate::methods::basic::LEARNED_TA_REJECT_SCALES)?;
         let mut plan = ta.plan().clone();
         plan.built.push(if layers == 6 { "ImportanceNet (6 layers)" } else { "ImportanceNet (3 layers)" });
         plan.built.push(match sizes {
