@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # The history rejection's scales (docs/quality.md, "The history rejection
 # at three scales"): WSKP-6, AFN and WSKP-3 with --ta-reject-scales 1, 2
-# and 3, one estimate (--pair first; PAIR=mean below), on every rendered scene of the
-# generator with a moving light (an emitter with keyframes, or an emissive
-# shape with them) and on the sequences given; per scene the mean PSNR
+# and 3, one estimate (--pair first; PAIR=mean below), on every rendered
+# training scene of the generator with a moving light (an emitter with
+# keyframes, or an emissive shape with them) and on the sequences given;
+# per scene the mean PSNR
 # over its frames, then per method and scale count the mean change from
 # one scale and the worst and best scene.
 #
@@ -15,8 +16,9 @@
 # outputs that exist are kept. SCALES="1 2 3", METHODS="wskp6 afn wskp3"
 # and PAIR=first (or mean: the pair's mean, where the frames carry B.*;
 # use another OUT_DIR for it) choose. Needs target/release/mcdenoise (or
-# $MCDENOISE). About 2 s a scene and method on a 2-core machine (8 frames
-# of 192x144).
+# $MCDENOISE) and bash 4 or later. About 2 s a scene and method on a
+# 2-core machine (8 frames of 192x144). Sequences are named by their
+# folder's name, which must differ.
 set -euo pipefail
 HERE="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 [ $# -ge 2 ] || { sed -n '2,/^set -euo/p' "$0" | grep '^#' >&2; exit 2; }
@@ -25,13 +27,16 @@ M=${MCDENOISE:-$HERE/../target/release/mcdenoise}
 gen=$1; out=$2; shift 2
 SCALES=${SCALES:-1 2 3}; METHODS=${METHODS:-wskp6 afn wskp3}; PAIR=${PAIR:-first}
 mkdir -p "$out"
+case " $SCALES " in *" 1 "*) ;; *) echo "reject-scales.sh: SCALES must include 1 (the changes are from it)" >&2; exit 2 ;; esac
 seqs=()
-[ "$gen" = - ] || mapfile -t seqs < <(python3 - "$gen" <<'EOF'
+if [ "$gen" != - ]; then
+    # (An assignment, so that a failing scan stops the script.)
+    list=$(python3 - "$gen" <<'EOF'
 import glob, json, os, sys
 gen = sys.argv[1]
-for f in sorted(glob.glob(os.path.join(gen, 'scenes', '*.json'))):
+for f in sorted(glob.glob(os.path.join(gen, 'scenes', 'train_*.json'))):
     name = os.path.basename(f)[:-5]
-    d = os.path.join(gen, name.split('_')[0], name)
+    d = os.path.join(gen, 'train', name)
     if not os.path.isdir(os.path.join(d, 'ref')):
         continue
     s = json.load(open(f))
@@ -40,6 +45,8 @@ for f in sorted(glob.glob(os.path.join(gen, 'scenes', '*.json'))):
         print(d)
 EOF
 )
+    [ -z "$list" ] || mapfile -t seqs <<<"$list"
+fi
 seqs+=("$@")
 [ ${#seqs[@]} -gt 0 ] || { echo "reject-scales.sh: no sequence (no rendered scene with a moving light in $gen)" >&2; exit 1; }
 echo "${#seqs[@]} sequences" >&2

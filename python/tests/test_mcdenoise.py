@@ -261,9 +261,13 @@ def test_ta_reject_scales_matches_the_command_line():
         subprocess.run([str(BIN), "denoise", "--quiet", "--float", "--threads", "2", "--method", "ta",
                         "--ta-reject-scales", "3", str(SAMPLE), "-o", out], check=True)
         d = mcdenoise.Denoiser("ta", threads=2, ta_reject_scales=3)
+        one = mcdenoise.Denoiser("ta", threads=2)
+        differs = False
         for i, f in enumerate(frames()):
             got = d.denoise(f["color"], **buffers(f))
             want = read_rgb(pathlib.Path(out) / ("frame_%04d.exr" % i))
             assert np.array_equal(got, want), "ta_reject_scales=3 frame %d differs from the CLI" % i
+            differs |= not np.array_equal(one.denoise(f["color"], **buffers(f)), got)
+        assert differs, "three scales change some frame of the sample against ta's one"
     with pytest.raises(ValueError, match="ta_reject_scales: expected"):
         mcdenoise.Denoiser("ta", ta_reject_scales=4)

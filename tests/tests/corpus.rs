@@ -210,11 +210,16 @@ fn every_method_lowers_hdr_error_and_makes_no_fireflies() {
     assert!(bad.is_empty(), "{bad:#?}");
 }
 
-/// f16 storage within 50 dB and fixed point within 40 dB (PSNR of the
+/// f16 storage within 50 dB and fixed point within 38 dB (PSNR of the
 /// display values) of the f32 output of the same method, on every scene,
 /// with either noise source. (Fixed point with the pair on the HDR room was
 /// 23 dB from f32 while the noise guide took the image format: its quiet
-/// pixels' variance rounded to 0 and closed the colour gate.)
+/// pixels' variance rounded to 0 and closed the colour gate. The bar was
+/// 40 dB until the accumulation's history counted its first frame, so that
+/// the second frame is a blend of two rounded in fixed point rather than
+/// the frame alone, and WSKP and AFN tested their history over 33x33
+/// means: WSKP-3 on the metals with one estimate went to 39.25 dB with the
+/// first and 38.98 with both.)
 #[test]
 fn reduced_precisions_follow_f32_on_every_scene() {
     let mut bad = Vec::new();
@@ -223,7 +228,7 @@ fn reduced_precisions_follow_f32_on_every_scene() {
             let (w, h) = (s.frames[0].width, s.frames[0].height);
             for (_, kind, layers) in DENOISERS.into_iter().filter(|d| d.1 != MethodKind::Cross) {
                 let f32s = run_layers(kind, layers, PrecisionKind::F32, &s, None);
-                for (precision, bar) in [(PrecisionKind::F16, 50.0), (PrecisionKind::Fixed, 40.0)] {
+                for (precision, bar) in [(PrecisionKind::F16, 50.0), (PrecisionKind::Fixed, 38.0)] {
                     let out = run_layers(kind, layers, precision, &s, None);
                     let mse = out.iter().zip(&f32s).map(|(o, r)| 10f64.powf(-metrics::score(o, r, w, h).psnr / 10.0));
                     let between = psnr_of(mse.sum::<f64>() / out.len() as f64);

@@ -119,8 +119,9 @@ fn temporal_accumulation_follows_the_blend_recurrence() {
         let mut den = methods::create(MethodKind::Ta, &settings, &first).unwrap();
         let mut ctx = methods::context(&settings).unwrap();
         let mut t = Timings::default();
-        // Independent recurrence: n counts accepted history, alpha = max(1/(n+1), 0.2).
-        let (mut acc, mut n) = (0.0f64, 0.0f64);
+        // Independent recurrence: n counts the frames in the history (the
+        // first frame is one), alpha = max(1/(n+1), 0.2).
+        let (mut acc, mut n) = (0.0f64, 1.0f64);
         for (i, &c) in colours.iter().enumerate() {
             let out = den.denoise(&static_frame(w, h, c, 0.0), &mut ctx, &mut t).unwrap();
             if i == 0 {
@@ -281,7 +282,7 @@ fn fixed_point_atrous_filters_a_frame_with_a_firefly() {
 /// `LEARNED_TA_REJECT` (2 standard errors), not `ta`'s `TA_REJECT` (3):
 /// their output with no `ta_reject` given equals the one with 2 given, bit
 /// for bit, and differs from the one with 3, on noisy frames whose level
-/// steps up (a light that moved) by enough to let the history go at 2.
+/// steps up by 15 % (a light that moved): more of the history goes at 2.
 #[test]
 fn the_learned_methods_reject_history_at_their_own_threshold() {
     let (w, h) = (24, 16);
@@ -302,7 +303,7 @@ fn the_learned_methods_reject_history_at_their_own_threshold() {
         f.set(Buffer::Depth, vec![1.0; n]).unwrap();
         f
     };
-    let frames = [frame(0.2), frame(0.2), frame(0.2), frame(0.3)];
+    let frames = [frame(0.2), frame(0.2), frame(0.2), frame(0.23)];
     const { assert!(methods::LEARNED_TA_REJECT < methods::TA_REJECT) };
     for (kind, layers) in [(MethodKind::Wskp, 3), (MethodKind::Afn, 6)] {
         let run = |z: Option<f32>| {
@@ -315,5 +316,22 @@ fn the_learned_methods_reject_history_at_their_own_threshold() {
         let (default, two, three) = (run(None), run(Some(methods::LEARNED_TA_REJECT)), run(Some(methods::TA_REJECT)));
         assert!(default.iter().zip(&two).all(|(a, b)| a.to_bits() == b.to_bits()), "{kind:?}: default is not 2");
         assert!(default != three, "{kind:?}: the step must let the history go at 2 and not as much at 3");
+    }
+    // Their scales: `LEARNED_TA_REJECT_SCALES` (three), not `ta`'s one. A
+    // step of 5 % is under 2 standard errors of most 9x9 means here and
+    // over them for the whole frame's (the 33x33 windows clipped to it).
+    let frames = [frame(0.2), frame(0.2), frame(0.2), frame(0.21)];
+    const { assert!(methods::LEARNED_TA_REJECT_SCALES > methods::TA_REJECT_SCALES) };
+    for (kind, layers) in [(MethodKind::Wskp, 3), (MethodKind::Afn, 6)] {
+        let run = |k: Option<usize>| {
+            let settings = Settings { threads: 2, layers, ta_reject_scales: k, ..Settings::default() };
+            let mut den = methods::create(kind, &settings, &frames[0]).unwrap();
+            let mut ctx = methods::context(&settings).unwrap();
+            let mut t = Timings::default();
+            frames.iter().map(|f| den.denoise(f, &mut ctx, &mut t).unwrap()).last().unwrap()
+        };
+        let (default, three, one) = (run(None), run(Some(methods::LEARNED_TA_REJECT_SCALES)), run(Some(1)));
+        assert!(default.iter().zip(&three).all(|(a, b)| a.to_bits() == b.to_bits()), "{kind:?}: default is not 3");
+        assert!(default != one, "{kind:?}: the wider windows must let more of a 5 % step go than 9x9 ones");
     }
 }

@@ -140,11 +140,14 @@ pub const TA_REJECT_SCALES: usize = 1;
 pub const LEARNED_TA_REJECT_SCALES: usize = 3;
 /// The rejection's name in plans.
 pub const REJECT_STAGE: &str = "history rejection (window means against the frame's noise)";
-/// Bytes per pixel the rejection holds for a moment (at most, for any
-/// number of scales): the accumulated colour in f32, three statistics
-/// planes, a copy of them summed for each scale but the last, the box
-/// sums' copies of those (the three run at once) and the blend.
-pub const REJECT_TEMP_BYTES: u64 = 13 * 4;
+/// Bytes per pixel the rejection holds for a moment at `scales` scales:
+/// the accumulated colour in f32, three statistics planes, the box sums'
+/// copies of the planes they sum (the three run at once) and the blend;
+/// with more than one scale, one copy of the three planes at a time to
+/// sum for every scale but the last.
+pub const fn reject_temp_bytes(scales: usize) -> u64 {
+    (10 + if scales > 1 { 3 } else { 0 }) * 4
+}
 
 /// Checks the number of the history rejection's scales given by the user.
 pub fn check_reject_scales(k: usize) -> Result<usize> {
@@ -300,6 +303,25 @@ pub fn reject_stale<P: HostPrecision>(
         }
     });
     crate::runtime::precision::encode_par::<P>(pool, &oc, &mut out.data, out.frac);
+    P::encode(&hv, &mut hist.data, hist.frac);
+}
+
+/// Floors the history counts at 1: every pixel's accumulated colour holds
+/// at least the frame just blended in. The accumulation marks a pixel that
+/// restarted (no tap of the previous frame accepted) with a count of 0
+/// and the rejection shrinks counts towards 0, and the next frame's blend,
+/// `alpha = max(1 / (n + 1), alpha_min)`, would take such a history for
+/// nothing (`alpha = 1`) and throw the frame in it away; with the floor it
+/// averages the two, as BMFR counts a restarted pixel's one sample.
+pub fn floor_counts<P: HostPrecision>(pool: &crate::runtime::par::Pool, hist: &mut Planes<P::Store>) {
+    let n = hist.data.len();
+    let mut hv = vec![0.0f32; n];
+    P::decode(&hist.data, &mut hv, hist.frac);
+    pool.planes(vec![&mut hv[..]], 1 << 14, |_, runs| {
+        for c in runs[0].iter_mut() {
+            *c = if c.is_finite() { c.max(1.0) } else { 1.0 };
+        }
+    });
     P::encode(&hv, &mut hist.data, hist.frac);
 }
 
@@ -494,17 +516,19 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
     /// and [`Denoiser::denoise`]: the history (colour, counts, normal and
     /// position) is kept; a frame encodes its buffers, accumulates into new
     /// colour and counts, drops the previous history, then decodes a copy.
-    pub fn footprint(info: &FrameInfo) -> Footprint {
+    /// `scales`: the rejection's ([`Self::with_reject_scales`]).
+    pub fn footprint(info: &FrameInfo, scales: usize) -> Footprint {
         let s = store_bytes::<P>();
         let mut l = Ledger::default();
-        let history = Self::step_ledger(info, &mut l);
+        let history = Self::step_ledger(info, &mut l, scales);
         l.alloc(3 * s).alloc(12).free(3 * s); // the copy decoded to the output
         Footprint { kept: history, peak: l.peak(), scratch: 0 }
     }
 
     /// What [`TemporalAccumulation::step`] allocates and frees, onto `l`; the
-    /// bytes per pixel it keeps (the history, live after the step).
-    pub fn step_ledger(info: &FrameInfo, l: &mut Ledger) -> u64 {
+    /// bytes per pixel it keeps (the history, live after the step), with the
+    /// rejection at `scales` scales.
+    pub fn step_ledger(info: &FrameInfo, l: &mut Ledger, scales: usize) -> u64 {
         let s = store_bytes::<P>();
         let has = |b: Buffer| u64::from(info.has(b));
         let (normal, position, motion) = (has(Buffer::Normal), has(Buffer::Position), has(Buffer::Motion));
@@ -514,7 +538,7 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
         l.alloc(3 * s); // colour
         l.alloc(3 * s * (normal + position + albedo) + 2 * s * motion);
         l.alloc(4 * s); // accumulated colour, history counts
-        l.temp(REJECT_TEMP_BYTES);
+        l.temp(reject_temp_bytes(scales));
         l.free(history).free(3 * s + 2 * s * motion);
         history
     }
@@ -540,7 +564,12 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
             return Err(HostError::bad(&f.path, "lacks a buffer the first frame of the sequence had"));
         }
         let next = match self.prev.take() {
-            None => History { color, hist: Planes::new(1, w, h).with_frac(HISTORY_FRAC), normal, position, albedo },
+            None => {
+                // The first frame's history holds that frame.
+                let mut hist = Planes::new(1, w, h).with_frac(HISTORY_FRAC);
+                P::encode(&vec![1.0f32; w * h], &mut hist.data, hist.frac);
+                History { color, hist, normal, position, albedo }
+            }
             Some(prev) => {
                 let mut out = Planes::new(3, w, h).with_frac(color.frac);
                 let mut hist = Planes::new(1, w, h).with_frac(HISTORY_FRAC);
@@ -572,6 +601,7 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
                         });
                     }
                 }
+                t.time("history counts floor", || floor_counts::<P>(&ctx.pool, &mut hist));
                 History { color: out, hist, normal, position, albedo }
             }
         };
@@ -690,7 +720,8 @@ mod tests {
     /// 1.8 standard errors of a 9x9 mean of 1-spp noise, 3.4 of a 17x17 one
     /// and 6.6 of a 33x33 one) mostly stays with the 9x9 means alone and
     /// mostly goes with three scales, while a static history (the left
-    /// half) is kept as with one scale.
+    /// half) is kept as with one scale; a lag of 2.8 % (2.5 standard errors
+    /// of a 33x33 mean, under the 1.5 times 2 that scale asks for) stays.
     #[test]
     fn wider_scales_let_a_small_lag_go_and_keep_a_static_history() {
         fn run<P: HostPrecision>() {
@@ -705,10 +736,10 @@ mod tests {
             // (moved towards the frame: its mean over the right half's
             // pixels whose 33x33 windows are whole and inside it; kept: the
             // share of the left half's pixels as far inside left alone)
-            let measure = |k: usize| {
-                let frac = P::frac_or_zero(P::choose_frac(&hist_c, Kind::Image));
+            let measure = |k: usize, hist_c: &[f32]| {
+                let frac = P::frac_or_zero(P::choose_frac(hist_c, Kind::Image));
                 let mut out = Planes::<P::Store>::new(3, w, h).with_frac(frac);
-                P::encode(&hist_c, &mut out.data, frac);
+                P::encode(hist_c, &mut out.data, frac);
                 let mut hist = Planes::<P::Store>::new(1, w, h).with_frac(P::frac_or_zero(HISTORY_FRAC));
                 P::encode(&vec![8.0f32; n], &mut hist.data, hist.frac);
                 reject_stale::<P>(&pool, &a, None, w, h, LEARNED_TA_REJECT, &REJECT_SCALES[..k], &mut out, &mut hist);
@@ -726,16 +757,63 @@ mod tests {
                         }
                     }
                 }
-                (moved / right as f64, kept as f64 / left as f64)
+                (moved / right as f64, kept as f64 / left as f64, hv)
             };
-            let (moved1, kept1) = measure(1);
-            let (moved3, kept3) = measure(3);
+            let (moved1, kept1, hv1) = measure(1, &hist_c);
+            let (moved3, kept3, hv3) = measure(3, &hist_c);
             assert!(moved1 < 0.3, "one scale moved {moved1} of the lag");
             assert!(moved3 > 0.8, "three scales moved {moved3} of the lag");
             assert!(kept3 > 0.9 && kept3 > kept1 - 0.03, "static history kept: {kept3} (one scale {kept1})");
+            // The largest blend of the scales: never less than one scale's.
+            assert!(hv3.iter().zip(&hv1).all(|(a, b)| a <= b), "three scales kept more history than one somewhere");
+            // The 33x33 test at 1.5 times the threshold: a 2.8 % lag (2.5
+            // standard errors of those means, 0.3 and 0.6 of the smaller
+            // ones) stays.
+            let small: Vec<f32> =
+                calm.iter().enumerate().map(|(i, &v)| if (i % n) % w >= w / 2 { v * 1.028 } else { v }).collect();
+            let (moved_small, _, _) = measure(3, &small);
+            assert!(moved_small < 0.1, "three scales moved {moved_small} of a 2.8 % lag");
         }
         run::<F32>();
         run::<mcdenoise_core::Fixed>();
+    }
+
+    /// The history holds the frames blended into it: on a static sequence
+    /// without rejection or clamp, `ta`'s second output is the mean of the
+    /// first two frames and its third the mean of all three (each to 1e-6
+    /// of the f64 mean), in f32 and fixed point (to its step); a pixel
+    /// whose history was let go counts as one frame, not none, so the next
+    /// frame is averaged with it.
+    #[test]
+    fn the_history_counts_the_frames_in_it() {
+        fn run<P: HostPrecision>(tol: f64) {
+            let seq = frames(&[0.5, 0.5, 0.5], 0.4);
+            let mut ctx = crate::methods::context(&crate::methods::Settings::default()).unwrap();
+            let mut ta = TemporalAccumulation::<P>::new(&seq[0], true)
+                .unwrap()
+                .with_clamp(0.0)
+                .unwrap()
+                .with_reject(0.0)
+                .unwrap();
+            let mut t = Timings::default();
+            for (k, f) in seq.iter().enumerate() {
+                let out = ta.denoise(f, &mut ctx, &mut t).unwrap();
+                for (p, &o) in out.iter().enumerate() {
+                    let want = seq[..=k].iter().map(|g| f64::from(g.get(Buffer::Color).unwrap()[p])).sum::<f64>()
+                        / (k + 1) as f64;
+                    assert!((f64::from(o) - want).abs() <= tol, "frame {k}, value {p}: {o} against the mean {want}");
+                }
+            }
+            let mut hist = Planes::<P::Store>::new(1, 3, 2).with_frac(P::frac_or_zero(HISTORY_FRAC));
+            P::encode(&[0.0, 0.25, 1.0, 3.0, f32::NAN, 64.0], &mut hist.data, hist.frac);
+            floor_counts::<P>(&crate::runtime::par::Pool::new(2).unwrap(), &mut hist);
+            let got = hist.decode::<P>();
+            assert_eq!(&got[..4], &[1.0, 1.0, 1.0, 3.0]);
+            assert_eq!(got[5], 64.0);
+            assert!(got[4] == 1.0 || P::FIXED_POINT, "NaN -> {}", got[4]);
+        }
+        run::<F32>(1e-6);
+        run::<mcdenoise_core::Fixed>(2e-3);
     }
 
     /// The one-estimate noise variance against its definition in f64, and

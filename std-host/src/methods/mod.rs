@@ -246,8 +246,9 @@ pub struct Settings {
     /// [`TA_CLAMP`], the learned methods' [`ta_clamp_for`] their weights).
     pub ta_clamp: Option<f32>,
     /// Temporal accumulation's history rejection, in standard errors of the
-    /// frame's 9x9 mean ([`reject_stale`]; 0: off; `None`: [`TA_REJECT`],
-    /// WSKP's and AFN's [`LEARNED_TA_REJECT`]).
+    /// frame's window means (9x9, and at [`REJECT_SCALES`] more;
+    /// [`reject_stale`]; 0: off; `None`: [`TA_REJECT`], WSKP's and AFN's
+    /// [`LEARNED_TA_REJECT`]).
     pub ta_reject: Option<f32>,
     /// How many of the history rejection's scales ([`REJECT_SCALES`]: 9x9,
     /// 17x17 and 33x33 means) it tests (`None`: [`TA_REJECT_SCALES`],
@@ -511,17 +512,28 @@ pub fn footprint(kind: MethodKind, settings: &Settings, info: &FrameInfo) -> Foo
 }
 
 fn footprint_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, info: &FrameInfo) -> Footprint {
+    let learned_scales = settings.ta_reject_scales.unwrap_or(basic::LEARNED_TA_REJECT_SCALES);
     match kind {
         MethodKind::None => Passthrough::<P>::footprint(info),
-        MethodKind::Ta => TemporalAccumulation::<P>::footprint(info),
+        MethodKind::Ta => {
+            TemporalAccumulation::<P>::footprint(info, settings.ta_reject_scales.unwrap_or(basic::TA_REJECT_SCALES))
+        }
         MethodKind::Atrous => Atrous::<P>::footprint(info, false, settings),
         MethodKind::SureAtrous => Atrous::<P>::footprint(info, true, settings),
-        MethodKind::Wskp => {
-            crate::methods::wskp::Wskp::<P>::footprint(info, settings.layers, settings.threads, settings.wide)
-        }
-        MethodKind::Afn => {
-            crate::methods::afn::Afn::<P>::footprint(info, settings.threads, settings.afn_whole_maps, settings.wide)
-        }
+        MethodKind::Wskp => crate::methods::wskp::Wskp::<P>::footprint(
+            info,
+            settings.layers,
+            settings.threads,
+            settings.wide,
+            learned_scales,
+        ),
+        MethodKind::Afn => crate::methods::afn::Afn::<P>::footprint(
+            info,
+            settings.threads,
+            settings.afn_whole_maps,
+            settings.wide,
+            learned_scales,
+        ),
         MethodKind::Cross => crate::methods::cross::Cross::footprint(info),
     }
 }

@@ -558,11 +558,13 @@ impl<P: HostPrecision> Afn<P> {
     /// stream in bands (scratch, not per pixel).
     /// With `whole_maps` ([`Afn::with_whole_maps`]), the full-scale logits
     /// and kernels held whole for a moment are added to the peak.
+    /// `scales`: the history rejection's.
     pub fn footprint(
         info: &crate::io::frame::FrameInfo,
         threads: usize,
         whole_maps: bool,
         wide: bool,
+        scales: usize,
     ) -> crate::runtime::memory::Footprint {
         use crate::runtime::precision::store_bytes;
         let s = store_bytes::<P>();
@@ -591,7 +593,7 @@ impl<P: HostPrecision> Afn<P> {
         // refinement's run), the encoded input and the networks' tensors as
         // they are made.
         let mut first = crate::runtime::memory::Ledger::default();
-        let history = TemporalAccumulation::<P>::step_ledger(info, &mut first);
+        let history = TemporalAccumulation::<P>::step_ledger(info, &mut first, scales);
         first.alloc(12 + 4 * u64::from(wide)).alloc(bufs);
         if P::FIXED_POINT {
             first.temp(
@@ -605,7 +607,7 @@ impl<P: HostPrecision> Afn<P> {
         // accumulation's step on top of it and the rest of the frame.
         let mut later = crate::runtime::memory::Ledger::default();
         later.alloc(bufs + CIN as u64 * s + body + refine_net + wide_kept);
-        TemporalAccumulation::<P>::step_ledger(info, &mut later);
+        TemporalAccumulation::<P>::step_ledger(info, &mut later, scales);
         later.alloc(12 + 4 * u64::from(wide));
         tail(&mut later, 0);
         let w = info.width;

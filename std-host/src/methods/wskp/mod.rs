@@ -441,12 +441,13 @@ impl<P: HostPrecision> Wskp<P> {
     /// fixed point runs the network in f32 once for the formats, every
     /// tensor kept and each decoded in turn;
     /// every later frame runs the accumulation's step on top of what the
-    /// first one kept.
+    /// first one kept. `scales`: the history rejection's.
     pub fn footprint(
         info: &crate::io::frame::FrameInfo,
         layers: usize,
         threads: usize,
         wide: bool,
+        scales: usize,
     ) -> crate::runtime::memory::Footprint {
         use crate::runtime::precision::{store_bytes, store_is};
         let s = store_bytes::<P>();
@@ -468,7 +469,7 @@ impl<P: HostPrecision> Wskp<P> {
             crate::methods::wide::ledger(l, wide, wide_first);
         };
         let mut first = crate::runtime::memory::Ledger::default();
-        let history = TemporalAccumulation::<P>::step_ledger(info, &mut first);
+        let history = TemporalAccumulation::<P>::step_ledger(info, &mut first, scales);
         first.alloc(bufs);
         if P::FIXED_POINT {
             first.temp(crate::nn::infer::ranges_bytes_per_pixel(&network));
@@ -477,7 +478,7 @@ impl<P: HostPrecision> Wskp<P> {
         output(&mut first, wide_kept);
         let mut later = crate::runtime::memory::Ledger::default();
         later.alloc(bufs + stored + net + wide_kept);
-        TemporalAccumulation::<P>::step_ledger(info, &mut later);
+        TemporalAccumulation::<P>::step_ledger(info, &mut later, scales);
         output(&mut later, 0);
         let w = info.width;
         let sl = softmax::fused_scratch_len::<P>(WindowPath::Separable, &SIZES, 3, w)
