@@ -138,8 +138,14 @@ pub const TA_REJECT_SCALES: usize = 1;
 /// training scenes with a moving light (docs/quality.md, "The history
 /// rejection at three scales").
 pub const LEARNED_TA_REJECT_SCALES: usize = 3;
-/// The rejection's name in plans.
-pub const REJECT_STAGE: &str = "history rejection (window means against the frame's noise)";
+/// The rejection's name in plans with 1, 2 and 3 scales.
+pub const REJECT_STAGES: [&str; 3] = [
+    "history rejection (9x9 means against the frame's noise)",
+    "history rejection (9x9 and 17x17 means against the frame's noise)",
+    "history rejection (9x9, 17x17 and 33x33 means against the frame's noise)",
+];
+/// The rejection's name in plans at one scale (`ta`'s).
+pub const REJECT_STAGE: &str = REJECT_STAGES[0];
 /// Bytes per pixel the rejection holds for a moment at `scales` scales:
 /// the accumulated colour in f32, three statistics planes, the box sums'
 /// copies of the planes they sum (the three run at once) and the blend;
@@ -346,10 +352,14 @@ pub fn neighbour_variance(v: impl Fn(usize) -> f32, p: usize, x: usize, y: usize
     }
 }
 
-/// Records the history rejection at `z` in `plan`: built when `z > 0`, else
-/// skipped (replacing an earlier entry).
-pub fn reject_plan(plan: &mut Plan, z: f32) {
-    stage_plan(plan, REJECT_STAGE, z > 0.0, "--ta-reject 0");
+/// Records the history rejection at `z` and `scales` in `plan`: built when
+/// `z > 0`, else skipped (replacing an earlier entry of any number of
+/// scales).
+pub fn reject_plan(plan: &mut Plan, z: f32, scales: usize) {
+    let name = REJECT_STAGES[scales.clamp(1, REJECT_STAGES.len()) - 1];
+    plan.built.retain(|s| !REJECT_STAGES.contains(s));
+    plan.skipped.retain(|(s, _)| !REJECT_STAGES.contains(s));
+    stage_plan(plan, name, z > 0.0, "--ta-reject 0");
 }
 
 /// Records `stage` in `plan` as built when `on`, else as skipped for `why`
@@ -477,7 +487,7 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
     /// A threshold outside `[0, 1e6]`.
     pub fn with_reject(mut self, z: f32) -> Result<Self> {
         self.reject = check_reject(z)?;
-        reject_plan(&mut self.plan, self.reject);
+        reject_plan(&mut self.plan, self.reject, self.reject_scales);
         Ok(self)
     }
 
@@ -488,12 +498,18 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
     /// `k` outside 1 to 3.
     pub fn with_reject_scales(mut self, k: usize) -> Result<Self> {
         self.reject_scales = check_reject_scales(k)?;
+        reject_plan(&mut self.plan, self.reject, self.reject_scales);
         Ok(self)
     }
 
     /// The history rejection's threshold (0: off).
     pub fn reject(&self) -> f32 {
         self.reject
+    }
+
+    /// How many of [`REJECT_SCALES`] the history rejection tests.
+    pub fn reject_scales(&self) -> usize {
+        self.reject_scales
     }
 
     /// With the history clamp of width `k` standard deviations (0: off).
@@ -814,6 +830,29 @@ mod tests {
         }
         run::<F32>(1e-6);
         run::<mcdenoise_core::Fixed>(2e-3);
+    }
+
+    /// The plan names the rejection's scales, once: built while the
+    /// threshold is above 0, skipped at 0.
+    #[test]
+    fn the_plan_names_the_rejection_scales() {
+        let seq = frames(&[0.5], 0.1);
+        let count = |p: &Plan| {
+            p.built.iter().filter(|s| REJECT_STAGES.contains(s)).count()
+                + p.skipped.iter().filter(|(s, _)| REJECT_STAGES.contains(s)).count()
+        };
+        assert!(TemporalAccumulation::<F32>::new(&seq[0], true).unwrap().plan().built.contains(&REJECT_STAGE));
+        for k in [3, 2, 1, 3] {
+            let ta = TemporalAccumulation::<F32>::new(&seq[0], true).unwrap().with_reject_scales(k).unwrap();
+            assert!(ta.plan().built.contains(&REJECT_STAGES[k - 1]), "{k} scales: {:?}", ta.plan());
+            assert_eq!(count(ta.plan()), 1, "{k} scales: {:?}", ta.plan());
+            let off = ta.with_reject(0.0).unwrap();
+            assert!(off.plan().skipped.iter().any(|(s, _)| *s == REJECT_STAGES[k - 1]), "{k} scales, off");
+            assert_eq!(count(off.plan()), 1, "{k} scales, off: {:?}", off.plan());
+            let on = off.with_reject(2.0).unwrap().with_reject_scales(1).unwrap();
+            assert!(on.plan().built.contains(&REJECT_STAGES[0]) && count(on.plan()) == 1, "{:?}", on.plan());
+        }
+        assert!(TemporalAccumulation::<F32>::new(&seq[0], true).unwrap().with_reject_scales(4).is_err());
     }
 
     /// The one-estimate noise variance against its definition in f64, and

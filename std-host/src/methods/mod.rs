@@ -31,7 +31,8 @@ pub use atrous::Atrous;
 pub use basic::{
     check_clamp, check_reject, check_reject_scales, clamp_plan, reject_plan, reject_stale, scene_scale, ta_clamp_for,
     ta_clamp_of, Passthrough, TemporalAccumulation, CLAMP_STAGE, LEARNED_TA_REJECT, LEARNED_TA_REJECT_SCALES,
-    POSITION_TOLERANCE, REJECT_SCALES, REJECT_STAGE, TA_CLAMP, TA_CLAMP_RADIUS, TA_REJECT, TA_REJECT_SCALES,
+    POSITION_TOLERANCE, REJECT_SCALES, REJECT_STAGE, REJECT_STAGES, TA_CLAMP, TA_CLAMP_RADIUS, TA_REJECT,
+    TA_REJECT_SCALES,
 };
 
 /// The methods, by command-line name.

@@ -423,7 +423,7 @@ impl<P: HostPrecision> Wskp<P> {
     /// ([`crate::methods::basic::reject_stale`]; 0: off).
     pub fn with_ta_reject(mut self, z: f32) -> Result<Self> {
         self.ta = self.ta.with_reject(z)?;
-        crate::methods::basic::reject_plan(&mut self.plan, z);
+        crate::methods::basic::reject_plan(&mut self.plan, z, self.ta.reject_scales());
         Ok(self)
     }
 
@@ -432,6 +432,7 @@ impl<P: HostPrecision> Wskp<P> {
     /// [`crate::methods::basic::LEARNED_TA_REJECT_SCALES`]).
     pub fn with_ta_reject_scales(mut self, k: usize) -> Result<Self> {
         self.ta = self.ta.with_reject_scales(k)?;
+        crate::methods::basic::reject_plan(&mut self.plan, self.ta.reject(), k);
         Ok(self)
     }
 
