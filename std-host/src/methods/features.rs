@@ -130,6 +130,10 @@ pub const PARTIAL_MIN_ALBEDO: f32 = 0.1;
 /// The reach of the learned filters (WSKP's 13x13 windows, AFN's 7x7 at
 /// half scale), over which those surroundings are measured.
 pub const EXCESS_RADIUS: usize = 7;
+/// The wider reach of [`split_excess`]'s level, in reaches: where a light
+/// without albedo is wider than the filters' reach, its middle takes the
+/// level of the surfaces within this many reaches.
+pub const EXCESS_WIDE: usize = 4;
 
 /// The factor of step 2 of the module's rule for one pixel: albedo `a`
 /// (any values) to `b` (in `(0, 1]` per channel).
@@ -317,10 +321,15 @@ pub fn transfer(x: f32) -> f32 {
 ///   the mean luminance of the surfaces with albedo within
 ///   [`EXCESS_RADIUS`] pixels (the filters' reach), with `LIGHT_RATIO`
 ///   instead of `EXCESS_RATIO` where the pixel is known to be a light
-///   (covered in part, or bright and smooth); where there are none, the
-///   floor inside a light (the kernels of the surfaces beside a large
-///   light reach into it) and no limit inside a pane of glass;
-/// - `excess = keep max(c - T, 0)` per channel, `c` keeps the rest.
+///   (covered in part, or bright and smooth); where the reach has no
+///   surfaces, the floor inside a light known to be one, and elsewhere (a
+///   light without albedo, a mirror or a pane of glass in a raw AOV) the
+///   same rule over [`EXCESS_WIDE`] reaches, for a share of the excess that
+///   falls from 1 to 0 over the next reach inwards: a light wider than the
+///   reach is split at one level from its outline to its middle (no step
+///   where the reach's surfaces run out: a bright and a dark line after
+///   filtering), and a region wider still is filtered whole in its middle;
+/// - `excess = share keep max(c - T, 0)` per channel, `c` keeps the rest.
 ///
 /// So a light stays sharp and bleeds at most `EXCESS_RATIO` times the
 /// level of the walls around it into them; continuous in the albedo.
@@ -462,7 +471,8 @@ pub fn split_excess(
             *o = o.max(keep0[start + i]);
         }
     });
-    // Box sums over the reach of (1 - keep) lum(c) and (1 - keep).
+    // Box sums over the reach of (1 - keep) lum(c) and (1 - keep), and over
+    // EXCESS_WIDE times it.
     let r = EXCESS_RADIUS;
     let mut num = vec![0.0f32; n];
     let mut den = vec![0.0f32; n];
@@ -478,30 +488,67 @@ pub fn split_excess(
             }
         });
     }
-    pool.install(|| rayon::join(|| box_sum(&mut num, w, h, r), || box_sum(&mut den, w, h, r)));
+    let (mut num_wide, mut den_wide) = (num.clone(), den.clone());
+    // How near the reach's edge a pixel beyond it lies: the surfaces
+    // dilated by the reach, summed over the reach (for a straight edge
+    // `2 r + 1 - (D - r)` columns of the window at distance `D`, however
+    // thin the surface).
+    let mut near = vec![0.0f32; n];
+    window_max(pool, &den, w, h, r, &mut near);
+    pool.install(|| {
+        rayon::join(
+            || {
+                rayon::join(
+                    || rayon::join(|| box_sum(&mut num, w, h, r), || box_sum(&mut den, w, h, r)),
+                    || box_sum(&mut near, w, h, r),
+                )
+            },
+            || {
+                rayon::join(
+                    || box_sum(&mut num_wide, w, h, EXCESS_WIDE * r),
+                    || box_sum(&mut den_wide, w, h, EXCESS_WIDE * r),
+                )
+            },
+        )
+    });
     let mut planes: Vec<&mut [f32]> = c[..3 * n].chunks_mut(n).collect();
     planes.extend(excess[..3 * n].chunks_mut(n));
     let (keep, num, den, tight) = (&keep, &num, &den, &tight);
+    let (num_wide, den_wide, near) = (&num_wide, &den_wide, &near);
+    let fade = ((2 * r + 1) * (r + 1)) as f32;
+    let rw = EXCESS_WIDE * r;
+    let (wide_full, wide_none) = (((2 * rw + 1) * (rw - r)) as f32, ((2 * rw + 1) * (rw - 2 * r)) as f32);
     pool.planes(planes, 1 << 14, |start, runs| {
         let (cs, ex) = runs.split_at_mut(3);
         for i in 0..cs[0].len() {
             let p = start + i;
             let k = keep[p];
             let ratio = EXCESS_RATIO + tight[p] * (LIGHT_RATIO - EXCESS_RATIO);
-            // Inside a large light no surface is within reach: its level is
-            // the floor (the light stays as it came, and the kernels of the
-            // surfaces beside it, which reach into it, find nothing of it);
-            // inside a pane of glass, none (it is filtered whole).
-            let level = if den[p] > 0.5 {
-                (ratio * num[p] / den[p]).max(floor)
+            // Inside a large light known to be one no surface is within
+            // reach: its level is the floor (the light stays as it came, and
+            // the kernels of the surfaces beside it, which reach into it,
+            // find nothing of it).
+            // Beyond the reach, the wider reach's level, for a share of the
+            // excess that falls with the distance: 1 one reach from the
+            // surfaces (`near` is a straight edge's `fade` there), 0 from
+            // two (filtered whole, a partly covered outline smoothed, as
+            // before the wider reach); or by the wider reach's count of
+            // surfaces, 1 from a straight edge's one reach in to 0 from
+            // two reaches in, whichever is larger: a light surrounded by
+            // surfaces is split alike to its middle.
+            let wide = (den_wide[p] > 0.5).then(|| num_wide[p] / den_wide[p]);
+            let (level, share) = if den[p] > 0.5 {
+                ((ratio * num[p] / den[p]).max(floor), 1.0)
             } else if tight[p] > 0.0 {
-                floor / tight[p]
+                (floor / tight[p], 1.0)
+            } else if let Some(m) = wide {
+                ((ratio * m).max(floor), (near[p] / fade).max((den_wide[p] - wide_none) / (wide_full - wide_none)).clamp(0.0, 1.0))
             } else {
-                f32::INFINITY
+                (f32::INFINITY, 1.0)
             };
             for ch in 0..3 {
                 let v = cs[ch][i];
-                let e = if k > 0.0 { k * (v - level).max(0.0) } else { 0.0 };
+                let e = if k > 0.0 { share * k * (v - level).max(0.0) } else { 0.0 };
                 cs[ch][i] = v - e;
                 ex[ch][i] = e;
             }
@@ -973,6 +1020,72 @@ mod tests {
         let mut c: Vec<f32> = orig.iter().map(|&v| if v == 50.0 { 3.0 } else { v }).collect();
         split_excess(&pool(), &mut c, &albedo, None, w, h, 1.0, &mut excess);
         assert!(excess.iter().all(|&e| e == 0.0), "a bright smooth wall is no light");
+    }
+
+    /// A light seen directly (no albedo, constant 3) wider than the filters'
+    /// reach, on a wall (albedo 0.5, 0.5): its level, 4 times the wall's,
+    /// is 2 by the wall, and it stays 2 inside it (the wider reach's mean),
+    /// so the part the filters average is the same on both sides of where
+    /// the reach's surfaces run out (the level was infinite there: a step
+    /// of 1, a bright and a dark line after filtering). A light wider than
+    /// the wider reach is split less and less over a reach (its middle
+    /// filtered whole): no step over a pixel larger than a sixth of the
+    /// excess (a seventh on a straight edge).
+    #[test]
+    fn a_wide_light_is_split_without_a_step() {
+        for (size, light) in [(60usize, 15..45usize), (160, 10..150)] {
+            let (w, h) = (size, size);
+            let n = w * h;
+            let inside = |x: usize, y: usize| light.contains(&x) && light.contains(&y);
+            let mut c = vec![0.0f32; 3 * n];
+            let mut albedo = vec![0.5f32; 3 * n];
+            for y in 0..h {
+                for x in 0..w {
+                    for ch in 0..3 {
+                        c[ch * n + y * w + x] = if inside(x, y) { 3.0 } else { 0.5 };
+                        if inside(x, y) {
+                            albedo[ch * n + y * w + x] = 0.0;
+                        }
+                    }
+                }
+            }
+            let orig = c.clone();
+            let mut excess = vec![0.0f32; 3 * n];
+            split_excess(&pool(), &mut c, &albedo, None, w, h, 1.0, &mut excess);
+            for i in 0..3 * n {
+                assert!((c[i] + excess[i] - orig[i]).abs() <= 1e-5 * orig[i], "conserved at {i}");
+            }
+            // Inside the light but for its 3-pixel outline (the smoothness
+            // test's and the outline's rows).
+            let core = |x: usize, y: usize| {
+                (light.start + 3..light.end - 3).contains(&x) && (light.start + 3..light.end - 3).contains(&y)
+            };
+            let mut steepest = 0.0f32;
+            for y in 0..h {
+                for x in 0..w {
+                    if !core(x, y) {
+                        continue;
+                    }
+                    let p = y * w + x;
+                    if size == 60 {
+                        assert!((c[p] - 2.0).abs() < 1e-4, "{size}: the level at ({x}, {y}) is {}, not 2", c[p]);
+                    }
+                    for q in [p + 1, p + w] {
+                        if core(q % w, q / w) {
+                            steepest = steepest.max((c[q] - c[p]).abs());
+                        }
+                    }
+                }
+            }
+            assert!(steepest <= 1.0 / 6.0, "{size}: a step of {steepest} between neighbours inside the light");
+            if size == 160 {
+                let mid = 80 * w + 80;
+                assert!(
+                    (c[mid] - 3.0).abs() < 1e-4,
+                    "the middle of a light wider than the wider reach is filtered whole"
+                );
+            }
+        }
     }
 
     /// A strip light one pixel thin across a ceiling (albedo 0.8; the strip's
