@@ -542,7 +542,10 @@ pub fn split_excess(
             } else if tight[p] > 0.0 {
                 (floor / tight[p], 1.0)
             } else if let Some(m) = wide {
-                ((ratio * m).max(floor), (near[p] / fade).max((den_wide[p] - wide_none) / (wide_full - wide_none)).clamp(0.0, 1.0))
+                (
+                    (ratio * m).max(floor),
+                    (near[p] / fade).max((den_wide[p] - wide_none) / (wide_full - wide_none)).clamp(0.0, 1.0),
+                )
             } else {
                 (f32::INFINITY, 1.0)
             };
