@@ -134,6 +134,9 @@ pub const EXCESS_RADIUS: usize = 7;
 /// without albedo is wider than the filters' reach, its middle takes the
 /// level of the surfaces within this many reaches.
 pub const EXCESS_WIDE: usize = 4;
+/// How many pixels' worth of the wider reach's mean the reach's mean of a
+/// pixel without albedo is drawn towards ([`split_excess`]).
+pub const EXCESS_BLEND: f32 = 8.0;
 
 /// The factor of step 2 of the module's rule for one pixel: albedo `a`
 /// (any values) to `b` (in `(0, 1]` per channel).
@@ -325,7 +328,9 @@ pub fn transfer(x: f32) -> f32 {
 ///   surfaces, the floor inside a light known to be one, and elsewhere (a
 ///   light without albedo, a mirror or a pane of glass in a raw AOV) the
 ///   same rule over [`EXCESS_WIDE`] reaches, for a share of the excess that
-///   falls from 1 to 0 over the next reach inwards: a light wider than the
+///   falls from 1 to 0 over the next reach inwards (on pixels without
+///   albedo the reach's mean drawn towards the wider one's by
+///   [`EXCESS_BLEND`] pixels' worth): a light wider than the
 ///   reach is split at one level from its outline to its middle (no step
 ///   where the reach's surfaces run out: a bright and a dark line after
 ///   filtering), and a region wider still is filtered whole in its middle;
@@ -371,14 +376,19 @@ pub fn split_excess(
         }
     });
     let (amax, none) = (&amax, &none);
+    // `coverage`: the part of the pixel its albedo's drop says a light
+    // without albedo covers, `1 - a / m`.
     let mut covered = vec![0.0f32; n];
+    let mut coverage = vec![0.0f32; n];
     window_max(pool, amax, w, h, 1, &mut covered);
-    pool.planes(vec![&mut covered[..]], RUN, |start, runs| {
-        for (i, o) in runs[0].iter_mut().enumerate() {
+    pool.planes(vec![&mut covered[..], &mut coverage[..]], RUN, |start, runs| {
+        let (cv, cg) = runs.split_at_mut(1);
+        for (i, (o, g)) in cv[0].iter_mut().zip(cg[0].iter_mut()).enumerate() {
             let (p, m) = (start + i, *o);
             *o = 0.0;
             if m > 0.0 {
-                *o = ((1.0 - amax[p] / m - PARTIAL_FROM) / (PARTIAL_FULL - PARTIAL_FROM)).clamp(0.0, 1.0);
+                *g = (1.0 - amax[p] / m).clamp(0.0, 1.0);
+                *o = ((*g - PARTIAL_FROM) / (PARTIAL_FULL - PARTIAL_FROM)).clamp(0.0, 1.0);
             }
         }
     });
@@ -405,12 +415,18 @@ pub fn split_excess(
     // times it (pixels without albedo may be glass or a mirror, noisy at
     // 1 spp: they keep the wider level).
     let mut tight = vec![0.0f32; n];
-    pool.planes(vec![&mut keep0[..], &mut tight[..]], RUN, |start, runs| {
-        let (k0, ti) = runs.split_at_mut(1);
+    // The part covered stands only where the light without albedo is seen
+    // beside the pixel: a pixel without albedo in its 3x3 neighbourhood at
+    // least half as bright as the neighbourhood's brightest (an albedo drop
+    // beside a dark background is a thin object's edge, not a light's).
+    pool.planes(vec![&mut keep0[..], &mut tight[..], &mut coverage[..]], RUN, |start, runs| {
+        let (k0, rest) = runs.split_at_mut(1);
+        let (ti, cg) = rest.split_at_mut(1);
         let mut at = Walk::new(start, w);
-        for (k0, ti) in k0[0].iter_mut().zip(ti[0].iter_mut()) {
+        for ((k0, ti), cg) in k0[0].iter_mut().zip(ti[0].iter_mut()).zip(cg[0].iter_mut()) {
             let (p, x, y) = at.next();
             if covered[p] <= *k0 {
+                *cg = 0.0;
                 continue;
             }
             let mut supported = false;
@@ -423,6 +439,19 @@ pub fn split_excess(
             if supported {
                 *k0 = covered[p];
                 *ti = covered[p];
+            }
+            let (mut bright, mut bare) = (0.0f32, 0.0f32);
+            for yy in y.saturating_sub(1)..(y + 2).min(h) {
+                for xx in x.saturating_sub(1)..(x + 2).min(w) {
+                    let q = yy * w + xx;
+                    bright = bright.max(lum[q]);
+                    if none[q] >= 0.5 {
+                        bare = bare.max(lum[q]);
+                    }
+                }
+            }
+            if !supported || bare < 0.5 * bright || bare <= 0.0 {
+                *cg = 0.0;
             }
         }
     });
@@ -536,18 +565,24 @@ pub fn split_excess(
             // surfaces, 1 from a straight edge's one reach in to 0 from
             // two reaches in, whichever is larger: a light surrounded by
             // surfaces is split alike to its middle.
+            // The surroundings' mean: the reach's where it has surfaces,
+            // else the wider reach's; on a pixel without albedo the reach's
+            // sums drawn towards the wider mean by EXCESS_BLEND pixels'
+            // worth, so the level runs on where the reach's surfaces run out.
             let wide = (den_wide[p] > 0.5).then(|| num_wide[p] / den_wide[p]);
-            let (level, share) = if den[p] > 0.5 {
-                ((ratio * num[p] / den[p]).max(floor), 1.0)
-            } else if tight[p] > 0.0 {
-                (floor / tight[p], 1.0)
-            } else if let Some(m) = wide {
-                (
+            let mean = match wide {
+                Some(m) if none[p] >= 0.5 => Some((num[p] + EXCESS_BLEND * m) / (den[p] + EXCESS_BLEND)),
+                _ if den[p] > 0.5 => Some(num[p] / den[p]),
+                other => other,
+            };
+            let (level, share) = match mean {
+                Some(m) if den[p] > 0.5 => ((ratio * m).max(floor), 1.0),
+                _ if tight[p] > 0.0 => (floor / tight[p], 1.0),
+                Some(m) => (
                     (ratio * m).max(floor),
                     (near[p] / fade).max((den_wide[p] - wide_none) / (wide_full - wide_none)).clamp(0.0, 1.0),
-                )
-            } else {
-                (f32::INFINITY, 1.0)
+                ),
+                None => (f32::INFINITY, 1.0),
             };
             for ch in 0..3 {
                 let v = cs[ch][i];
@@ -558,25 +593,35 @@ pub fn split_excess(
         }
     });
     if let (Some((normal, depth)), Some(partial)) = (geometry, partial) {
-        smooth_partial(pool, excess, &partial, albedo, normal, depth, w, h);
+        let light = Partial { partial: &partial, coverage: &coverage };
+        smooth_partial(pool, excess, &light, albedo, normal, depth, w, h);
     }
+}
+
+/// The planes [`smooth_partial`] reads beside the frame's: which pixels a
+/// light covers in part and the part (from the albedo's drop).
+struct Partial<'a> {
+    partial: &'a [f32],
+    coverage: &'a [f32],
 }
 
 /// The last step of [`split_excess`]: the excess of a pixel a light
 /// covers in part is the light's radiance times the part covered, and at a
 /// few samples per pixel each sample hits the light or misses it: a strip
 /// light at 1 spp comes out as a dotted line, a light's edge as a ragged
-/// one. Such a pixel's excess becomes the mean over the partly covered
-/// pixels within [`PARTIAL_RADIUS`] covered alike: albedo (which drops with
-/// the part covered, and renderers' albedo buffers are cleaner than their
-/// colour), normal and depth (a light's edge in front of another surface
-/// does not spread onto that surface's texture). Pixels with albedo under
-/// [`PARTIAL_MIN_ALBEDO`] keep theirs.
+/// one. Such a pixel's excess becomes its part covered, from its albedo's
+/// drop (renderers' albedo buffers are cleaner than their colour), times
+/// the light's excess per part covered, `sum e / sum part` over the pixels
+/// within [`PARTIAL_RADIUS`] covered in part on the same surface (normal
+/// and depth: a light's edge in front of another surface does not spread
+/// onto that surface's texture); pixels covered alike get the mean of
+/// their excess. Pixels with albedo under [`PARTIAL_MIN_ALBEDO`] keep
+/// theirs.
 #[allow(clippy::too_many_arguments)]
 fn smooth_partial(
     pool: &Pool,
     excess: &mut [f32],
-    partial: &[f32],
+    light: &Partial,
     albedo: &[f32],
     normal: &[f32],
     depth: &[f32],
@@ -584,6 +629,7 @@ fn smooth_partial(
     h: usize,
 ) {
     let n = w * h;
+    let Partial { partial, coverage } = *light;
     if !partial.iter().any(|&t| t > 0.0) || normal.len() < 3 * n || depth.len() < n || albedo.len() < 3 * n {
         return;
     }
@@ -592,6 +638,20 @@ fn smooth_partial(
     let src = &src;
     let at3 = |b: &[f32], p: usize| [b[p], b[n + p], b[2 * n + p]];
     let len = |v: [f32; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    // A pixel whose samples found a surface in part and nothing in part (a
+    // light without a surface: a sky through a window; normal and depth 0
+    // there) has its normal and depth scaled alike by the part: its
+    // normal's length gives its surface's depth back.
+    fn surface_depth(d: f32, l: f32) -> f32 {
+        if l > 0.25 && l < 0.99 {
+            d / l
+        } else {
+            d
+        }
+    }
+    fn as_came(d: f32, _: f32) -> f32 {
+        d
+    }
     pool.planes(excess[..3 * n].chunks_mut(n).collect(), 1 << 12, |start, runs| {
         let mut at = Walk::new(start, w);
         for i in 0..runs[0].len() {
@@ -600,13 +660,23 @@ fn smooth_partial(
             if partial[p] <= 0.0 || ap[0].max(ap[1]).max(ap[2]) < PARTIAL_MIN_ALBEDO {
                 continue;
             }
-            let (np, dp) = (at3(normal, p), depth[p]);
+            let np = at3(normal, p);
             let lp = len(np);
-            let (mut sum, mut cnt) = ([0.0f32; 3], 0u32);
+            // With its part covered known (a light without albedo seen
+            // beside it), the pixels whose parts are known, their depths read
+            // through their normals' length and a normal missing from a
+            // quarter of unit length down; without, the mean over those
+            // covered alike (weights 1, depths as they came, a normal
+            // missing from half).
+            let known = coverage[p] > 0.0;
+            let (missing, depth_of): (f32, fn(f32, f32) -> f32) =
+                if known { (0.25, surface_depth) } else { (0.5, as_came) };
+            let dp = depth_of(depth[p], lp);
+            let (mut sum, mut parts) = ([0.0f32; 3], 0.0f32);
             for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
                 for xx in x.saturating_sub(r)..(x + r + 1).min(w) {
                     let q = yy * w + xx;
-                    if partial[q] <= 0.0 {
+                    if partial[q] <= 0.0 || (known && coverage[q] <= 0.0) {
                         continue;
                     }
                     let aq = at3(albedo, q);
@@ -616,23 +686,26 @@ fn smooth_partial(
                     let nq = at3(normal, q);
                     let lq = len(nq);
                     let dot = np[0] * nq[0] + np[1] * nq[1] + np[2] * nq[2];
-                    let facing =
-                        if lp < 0.5 || lq < 0.5 { lp < 0.5 && lq < 0.5 } else { dot >= PARTIAL_NORMAL_COS * lp * lq };
-                    let dq = depth[q];
+                    let facing = if lp < missing || lq < missing {
+                        lp < missing && lq < missing
+                    } else {
+                        dot >= PARTIAL_NORMAL_COS * lp * lq
+                    };
+                    let dq = depth_of(depth[q], lq);
                     let near = !(dp.is_finite() && dq.is_finite())
                         || (dq - dp).abs() <= PARTIAL_DEPTH_TOL * dq.abs().max(dp.abs());
                     if alike && facing && near {
                         for (c, s) in sum.iter_mut().enumerate() {
                             *s += src[c * n + q];
                         }
-                        cnt += 1;
+                        parts += if known { coverage[q] } else { 1.0 };
                     }
                 }
             }
-            // (The pixel itself always counts: cnt >= 1.)
-            if cnt > 0 {
+            // (The pixel itself always counts, its part over PARTIAL_FROM.)
+            if parts > 0.0 {
                 for (c, run) in runs.iter_mut().enumerate() {
-                    let v = sum[c] / cnt as f32;
+                    let v = if known { coverage[p] } else { 1.0 } * sum[c] / parts;
                     if v.is_finite() {
                         run[i] = v;
                     }
@@ -1033,10 +1106,16 @@ mod tests {
     /// of 1, a bright and a dark line after filtering). A light wider than
     /// the wider reach is split less and less over a reach (its middle
     /// filtered whole): no step over a pixel larger than a sixth of the
-    /// excess (a seventh on a straight edge).
+    /// excess (a seventh on a straight edge). On a wall whose brightness
+    /// runs across the frame the reach's mean and the wider one's differ;
+    /// the pixels without albedo drawing the one towards the other keep
+    /// the steps under a sixth too (a step of 0.22 without).
     #[test]
     fn a_wide_light_is_split_without_a_step() {
-        for (size, light) in [(60usize, 15..45usize), (160, 10..150)] {
+        // (The third: a wall whose luminance runs from 0.3 to 0.7 across the
+        // frame, so that the reach's and the wider reach's means differ:
+        // 4 times 0.37 by the light's left edge against about 0.5.)
+        for (size, light, slope) in [(60usize, 15..45usize, 0.0f32), (160, 10..150, 0.0), (60, 15..45, 0.4)] {
             let (w, h) = (size, size);
             let n = w * h;
             let inside = |x: usize, y: usize| light.contains(&x) && light.contains(&y);
@@ -1045,7 +1124,8 @@ mod tests {
             for y in 0..h {
                 for x in 0..w {
                     for ch in 0..3 {
-                        c[ch * n + y * w + x] = if inside(x, y) { 3.0 } else { 0.5 };
+                        let wall = 0.5 + slope * (x as f32 / (w - 1) as f32 - 0.5);
+                        c[ch * n + y * w + x] = if inside(x, y) { 3.0 } else { wall };
                         if inside(x, y) {
                             albedo[ch * n + y * w + x] = 0.0;
                         }
@@ -1070,7 +1150,7 @@ mod tests {
                         continue;
                     }
                     let p = y * w + x;
-                    if size == 60 {
+                    if size == 60 && slope == 0.0 {
                         assert!((c[p] - 2.0).abs() < 1e-4, "{size}: the level at ({x}, {y}) is {}, not 2", c[p]);
                     }
                     for q in [p + 1, p + w] {
@@ -1080,7 +1160,7 @@ mod tests {
                     }
                 }
             }
-            assert!(steepest <= 1.0 / 6.0, "{size}: a step of {steepest} between neighbours inside the light");
+            assert!(steepest <= 1.0 / 6.0, "{size} {slope}: a step of {steepest} between neighbours inside the light");
             if size == 160 {
                 let mid = 80 * w + 80;
                 assert!(
@@ -1187,6 +1267,64 @@ mod tests {
         let (mut c2, mut ex2) = (c.clone(), vec![0.0f32; 3 * n]);
         split_excess(&pool(), &mut c2, &albedo, Some((&facing, &depth)), w, h, 1.0, &mut ex2);
         assert!((0..w).any(|x| ex2[other * w + x] > 1.0), "without the normals' guard the light spreads");
+    }
+
+    /// A light without a surface (a sky through a window: albedo, normal and
+    /// depth 0, radiance 60) above a wall (albedo 0.8, normal +z, depth 2):
+    /// the edge row between them is covered 0.4 to 0.55, each pixel's AOVs
+    /// the wall's times the part it misses (its normal shortened, its depth
+    /// scaled), its 1-spp colour a hit (60) or a miss (0.3). Each edge
+    /// pixel's excess is its part covered times the row's excess per part
+    /// covered within PARTIAL_RADIUS (f64, the parts from the albedos),
+    /// which needs the depths read through the normals' length (as they
+    /// came, they differ by up to 25 %; the albedos are all alike).
+    #[test]
+    fn a_light_edge_gets_its_part_of_the_lights_excess() {
+        let (w, h) = (40, 12);
+        let n = w * h;
+        let edge = 4usize;
+        let part = |x: usize| 0.4 + 0.05 * (x % 4) as f32;
+        let mut next = crate::methods::test_noise::xorshift32(0x9e37_79b9_u32);
+        let (mut c, mut albedo) = (vec![0.0f32; 3 * n], vec![0.0f32; 3 * n]);
+        let (mut normal, mut depth) = (vec![0.0f32; 3 * n], vec![0.0f32; n]);
+        for y in 0..h {
+            for x in 0..w {
+                let p = y * w + x;
+                let (v, a, nz, d) = if y < edge {
+                    (60.0, 0.0, 0.0, 0.0)
+                } else if y == edge {
+                    let hit = (next() % 1000) as f32 / 1000.0 < part(x);
+                    let miss = 1.0 - part(x);
+                    (if hit { 60.0 } else { 0.3 }, 0.8 * miss, miss, 2.0 * miss)
+                } else {
+                    (0.3 * (0.9 + 0.2 * (next() % 100) as f32 / 100.0), 0.8, 1.0, 2.0)
+                };
+                for ch in 0..3 {
+                    c[ch * n + p] = v;
+                    albedo[ch * n + p] = a;
+                }
+                normal[2 * n + p] = nz;
+                depth[p] = d;
+            }
+        }
+        let (mut c0, mut ex0) = (c.clone(), vec![0.0f32; 3 * n]);
+        split_excess(&pool(), &mut c0, &albedo, None, w, h, 1.0, &mut ex0);
+        let (mut c1, mut ex1) = (c.clone(), vec![0.0f32; 3 * n]);
+        split_excess(&pool(), &mut c1, &albedo, Some((&normal, &depth)), w, h, 1.0, &mut ex1);
+        assert_eq!(c0, c1, "the filtered part is the same");
+        let r = PARTIAL_RADIUS;
+        let row = |x: usize| edge * w + x;
+        assert!((0..w).any(|x| ex0[row(x)] == 0.0) && (0..w).any(|x| ex0[row(x)] > 30.0), "a dotted edge");
+        for x in 0..w {
+            let near = x.saturating_sub(r)..(x + r + 1).min(w);
+            let per_part = near.clone().map(|q| ex0[row(q)] as f64).sum::<f64>()
+                / near.map(|q| 1.0 - albedo[row(q)] as f64 / 0.8).sum::<f64>();
+            let want = (1.0 - albedo[row(x)] as f64 / 0.8) * per_part;
+            for ch in 0..3 {
+                let got = ex1[ch * n + row(x)] as f64;
+                assert!((got - want).abs() <= 1e-4 * want.max(1.0), "edge x {x} channel {ch}: {got} against {want}");
+            }
+        }
     }
 
     /// The envelope against its definition, `max_q b(q) DECAY^(|dx|+|dy|)`.
