@@ -227,11 +227,17 @@ pub fn load_sequence(dir: &Path) -> Result<Sequence> {
 }
 
 /// The temporally accumulated radiance of every frame (f32), with the
-/// history clamp `clamp` (standard deviations; 0: off).
+/// history clamp `clamp` (standard deviations; 0: off) and the history
+/// rejection WSKP and AFN run with ([`crate::methods::LEARNED_TA_REJECT`]
+/// standard errors over [`crate::methods::LEARNED_TA_REJECT_SCALES`]
+/// window sizes), so that the networks train on the inputs they denoise.
 pub fn accumulate(seq: &Sequence, threads: usize, isa: Isa, clamp: f32) -> Result<Vec<Vec<f32>>> {
     let settings = Settings { threads, isa, precision: PrecisionKind::F32, ..Settings::default() };
     let mut ctx = context(&settings)?;
-    let mut ta = TemporalAccumulation::<F32>::new(&seq.frames[0], false)?.with_clamp(clamp)?;
+    let mut ta = TemporalAccumulation::<F32>::new(&seq.frames[0], false)?
+        .with_clamp(clamp)?
+        .with_reject(crate::methods::LEARNED_TA_REJECT)?
+        .with_reject_scales(crate::methods::LEARNED_TA_REJECT_SCALES)?;
     let mut t = Timings::default();
     seq.frames.iter().map(|f| ta.denoise(f, &mut ctx, &mut t)).collect()
 }
@@ -652,8 +658,11 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     }
     let ta_meta = ("ta_clamp", a.ta_clamp.to_string());
     // The accumulation's history rejection the inputs were made with (the
-    // default; a record, not read back).
-    let reject_meta = ("ta_reject", crate::methods::TA_REJECT.to_string());
+    // learned methods'; a record, not read back).
+    let reject_meta = (
+        "ta_reject",
+        format!("{} over {} scales", crate::methods::LEARNED_TA_REJECT, crate::methods::LEARNED_TA_REJECT_SCALES),
+    );
     let mut at = 0;
     let spec: Vec<(Net, Vec<f32>, (usize, usize))> = nets
         .iter()
