@@ -517,29 +517,49 @@ pub fn split_excess(
             }
         });
     }
+    // (Before the reach's sums: the wider reach's, and `near`, start from
+    // the same planes.)
     let (mut num_wide, mut den_wide) = (num.clone(), den.clone());
+    pool.install(|| rayon::join(|| box_sum(&mut num, w, h, r), || box_sum(&mut den, w, h, r)));
+    // The wider reach is read only by a kept pixel without albedo (the
+    // blend) or without surfaces within the reach and not known to be a
+    // light; `near` only by the latter. Most frames' lights lie within
+    // the reach of surfaces: neither is made.
+    let (need_wide, need_near) = {
+        use rayon::prelude::*;
+        let (keep, den, tight) = (&keep, &den, &tight);
+        let beyond = |p: usize| den[p] <= 0.5 && tight[p] == 0.0;
+        pool.install(|| {
+            let kept = || (0..n).into_par_iter().with_min_len(RUN).filter(|&p| keep[p] > 0.0);
+            let near = kept().any(beyond);
+            (near || kept().any(|p| none[p] >= 0.5), near)
+        })
+    };
     // How near the reach's edge a pixel beyond it lies: the surfaces
     // dilated by the reach, summed over the reach (for a straight edge
     // `2 r + 1 - (D - r)` columns of the window at distance `D`, however
     // thin the surface).
     let mut near = vec![0.0f32; n];
-    window_max(pool, &den, w, h, r, &mut near);
-    pool.install(|| {
-        rayon::join(
-            || {
-                rayon::join(
-                    || rayon::join(|| box_sum(&mut num, w, h, r), || box_sum(&mut den, w, h, r)),
-                    || box_sum(&mut near, w, h, r),
-                )
-            },
-            || {
-                rayon::join(
-                    || box_sum(&mut num_wide, w, h, EXCESS_WIDE * r),
-                    || box_sum(&mut den_wide, w, h, EXCESS_WIDE * r),
-                )
-            },
-        )
-    });
+    if need_near {
+        window_max(pool, &den_wide, w, h, r, &mut near);
+    }
+    if need_wide {
+        pool.install(|| {
+            rayon::join(
+                || {
+                    if need_near {
+                        box_sum(&mut near, w, h, r)
+                    }
+                },
+                || {
+                    rayon::join(
+                        || box_sum(&mut num_wide, w, h, EXCESS_WIDE * r),
+                        || box_sum(&mut den_wide, w, h, EXCESS_WIDE * r),
+                    )
+                },
+            )
+        });
+    }
     let mut planes: Vec<&mut [f32]> = c[..3 * n].chunks_mut(n).collect();
     planes.extend(excess[..3 * n].chunks_mut(n));
     let (keep, num, den, tight) = (&keep, &num, &den, &tight);
@@ -553,23 +573,22 @@ pub fn split_excess(
             let p = start + i;
             let k = keep[p];
             let ratio = EXCESS_RATIO + tight[p] * (LIGHT_RATIO - EXCESS_RATIO);
-            // Inside a large light known to be one no surface is within
-            // reach: its level is the floor (the light stays as it came, and
-            // the kernels of the surfaces beside it, which reach into it,
-            // find nothing of it).
-            // Beyond the reach, the wider reach's level, for a share of the
-            // excess that falls with the distance: 1 one reach from the
-            // surfaces (`near` is a straight edge's `fade` there), 0 from
-            // two (filtered whole, a partly covered outline smoothed, as
-            // before the wider reach); or by the wider reach's count of
-            // surfaces, 1 from a straight edge's one reach in to 0 from
-            // two reaches in, whichever is larger: a light surrounded by
-            // surfaces is split alike to its middle.
             // The surroundings' mean: the reach's where it has surfaces,
             // else the wider reach's; on a pixel without albedo the reach's
             // sums drawn towards the wider mean by EXCESS_BLEND pixels'
-            // worth, so the level runs on where the reach's surfaces run out.
-            let wide = (den_wide[p] > 0.5).then(|| num_wide[p] / den_wide[p]);
+            // worth, so the level runs on where the reach's surfaces run
+            // out. Inside a large light known to be one no surface is within
+            // reach: its level is the floor (the light stays as it came, and
+            // the kernels of the surfaces beside it, which reach into it,
+            // find nothing of it). Elsewhere beyond the reach, the wider
+            // reach's level, for a share of the excess that falls with the
+            // distance: 1 one reach from the surfaces (`near` is a straight
+            // edge's `fade` there), 0 from two (filtered whole, a partly
+            // covered outline smoothed); or by the wider reach's count of
+            // surfaces, 1 from a straight edge's one reach in to 0 from two
+            // reaches in, whichever is larger: a light surrounded by
+            // surfaces is split alike to its middle.
+            let wide = (need_wide && den_wide[p] > 0.5).then(|| num_wide[p] / den_wide[p]);
             let mean = match wide {
                 Some(m) if none[p] >= 0.5 => Some((num[p] + EXCESS_BLEND * m) / (den[p] + EXCESS_BLEND)),
                 _ if den[p] > 0.5 => Some(num[p] / den[p]),
@@ -1215,11 +1234,7 @@ mod tests {
                 }
             }
         }
-        let (mut c0, mut ex0) = (c.clone(), vec![0.0f32; 3 * n]);
-        split_excess(&pool(), &mut c0, &albedo, None, w, h, 1.0, &mut ex0);
-        let (mut c1, mut ex1) = (c.clone(), vec![0.0f32; 3 * n]);
-        split_excess(&pool(), &mut c1, &albedo, Some((&normal, &depth)), w, h, 1.0, &mut ex1);
-        assert_eq!(c0, c1, "the filtered part is the same");
+        let (ex0, ex1) = split_both(&c, &albedo, &normal, &depth, w, h);
         let r = PARTIAL_RADIUS;
         let (mut zeros, mut hits) = (0, 0);
         for x in 4..w - 4 {
@@ -1269,6 +1284,26 @@ mod tests {
         assert!((0..w).any(|x| ex2[other * w + x] > 1.0), "without the normals' guard the light spreads");
     }
 
+    /// `c` split without and with the geometry (`normal`, `depth`): the
+    /// excess of each; the filtered part must be the same either way (the
+    /// geometry only moves excess between partly covered pixels).
+    fn split_both(
+        c: &[f32],
+        albedo: &[f32],
+        normal: &[f32],
+        depth: &[f32],
+        w: usize,
+        h: usize,
+    ) -> (Vec<f32>, Vec<f32>) {
+        let n = w * h;
+        let (mut c0, mut ex0) = (c.to_vec(), vec![0.0f32; 3 * n]);
+        split_excess(&pool(), &mut c0, albedo, None, w, h, 1.0, &mut ex0);
+        let (mut c1, mut ex1) = (c.to_vec(), vec![0.0f32; 3 * n]);
+        split_excess(&pool(), &mut c1, albedo, Some((normal, depth)), w, h, 1.0, &mut ex1);
+        assert_eq!(c0, c1, "the filtered part is the same");
+        (ex0, ex1)
+    }
+
     /// A light without a surface (a sky through a window: albedo, normal and
     /// depth 0, radiance 60) above a wall (albedo 0.8, normal +z, depth 2):
     /// the edge row between them is covered 0.4 to 0.55, each pixel's AOVs
@@ -1307,11 +1342,7 @@ mod tests {
                 depth[p] = d;
             }
         }
-        let (mut c0, mut ex0) = (c.clone(), vec![0.0f32; 3 * n]);
-        split_excess(&pool(), &mut c0, &albedo, None, w, h, 1.0, &mut ex0);
-        let (mut c1, mut ex1) = (c.clone(), vec![0.0f32; 3 * n]);
-        split_excess(&pool(), &mut c1, &albedo, Some((&normal, &depth)), w, h, 1.0, &mut ex1);
-        assert_eq!(c0, c1, "the filtered part is the same");
+        let (ex0, ex1) = split_both(&c, &albedo, &normal, &depth, w, h);
         let r = PARTIAL_RADIUS;
         let row = |x: usize| edge * w + x;
         assert!((0..w).any(|x| ex0[row(x)] == 0.0) && (0..w).any(|x| ex0[row(x)] > 30.0), "a dotted edge");
