@@ -334,23 +334,21 @@ pub fn to_input_with(
     // its: a light's partially covered edge beside a wall reads as noise
     // and would hide the wall pixel's error.
     let mut ks = vec![1.0f32; n];
-    ctx.pool.planes(vec![&mut ks[..]], 1 << 12, |start, runs| {
-        for (j, k) in runs[0].iter_mut().enumerate() {
-            let i = start + j;
-            let (px, py) = (i % w, i / w);
-            let (mut vs, mut es, mut cnt) = (0.0f32, 0.0f32, 0.0f32);
-            for qy in py.saturating_sub(RADIUS)..(py + RADIUS + 1).min(h) {
-                for qx in px.saturating_sub(RADIUS)..(px + RADIUS + 1).min(w) {
-                    let q = qy * w + qx;
-                    if alike(albedo, ly, n, i, q) {
-                        vs += raw[q];
-                        es += err[q];
-                        cnt += 1.0;
-                    }
-                }
+    let win = Window { albedo, ly, raw: &raw, err: &err, w, h };
+    let isa = ctx.isa;
+    // Runs of whole rows, about 4096 pixels each.
+    ctx.pool.planes(vec![&mut ks[..]], w * (4096 / w).max(1), |start, runs| {
+        let mut sums = vec![0.0f32; 3 * w];
+        for (r, ks) in runs[0].chunks_mut(w).enumerate() {
+            let (vs, rest) = sums.split_at_mut(w);
+            let (es, cnt) = rest.split_at_mut(w);
+            // SAFETY: `ctx.isa` is one this CPU has (checked when the
+            // context was made).
+            unsafe { window_row_on(isa, &win, start / w + r, vs, es, cnt) };
+            for (x, k) in ks.iter_mut().enumerate() {
+                // (The estimate is the channels' mean: their sum is 3 times it.)
+                *k = blend_weight(3.0 * vs[x], es[x], vs[x] / cnt[x].max(1.0));
             }
-            // (The estimate is the channels' mean: their sum is 3 times it.)
-            *k = blend_weight(3.0 * vs, es, vs / cnt.max(1.0));
         }
     });
     let ks = &ks;
@@ -368,6 +366,113 @@ pub fn to_input_with(
         }
     });
     Ok(())
+}
+
+/// The planes the fallback's window sums read: the albedo and the
+/// exposure-normalised `log1p` input (3 planes each), the noise estimate
+/// and the squared difference (1 each), all of `w x h`.
+struct Window<'a> {
+    albedo: &'a [f32],
+    ly: &'a [f32],
+    raw: &'a [f32],
+    err: &'a [f32],
+    w: usize,
+    h: usize,
+}
+
+/// The window sums of row `y` (into `vs`, `es`, `cnt`, each `w` long): over
+/// the pixels of the 7x7 window [`alike`] the centre, their noise
+/// estimate, their squared difference and their count. Neighbour by
+/// neighbour along the row (each in the order of the window's rows, then
+/// columns: every pixel's sums are added up as a loop over its own window
+/// adds them), so that the compiler can take the row's pixels in blocks.
+#[inline(always)]
+fn window_row(win: &Window<'_>, y: usize, vs: &mut [f32], es: &mut [f32], cnt: &mut [f32]) {
+    let Window { albedo, ly, raw, err, w, h } = *win;
+    let n = w * h;
+    let (vs, es, cnt) = (&mut vs[..w], &mut es[..w], &mut cnt[..w]);
+    vs.fill(0.0);
+    es.fill(0.0);
+    cnt.fill(0.0);
+    // Row `y` of plane `c` of `v`; `len` values of `v` from `o`.
+    fn plane_row(v: &[f32], c: usize, y: usize, w: usize, n: usize) -> &[f32] {
+        &v[c * n + y * w..c * n + (y + 1) * w]
+    }
+    fn span(v: &[f32], o: usize, len: usize) -> &[f32] {
+        &v[o..o + len]
+    }
+    let row = |v, c, y| plane_row(v, c, y, w, n);
+    let (a0, a1, a2) = (row(albedo, 0, y), row(albedo, 1, y), row(albedo, 2, y));
+    let (l0, l1, l2) = (row(ly, 0, y), row(ly, 1, y), row(ly, 2, y));
+    for qy in y.saturating_sub(RADIUS)..(y + RADIUS + 1).min(h) {
+        let (b0, b1, b2) = (row(albedo, 0, qy), row(albedo, 1, qy), row(albedo, 2, qy));
+        let (m0, m1, m2) = (row(ly, 0, qy), row(ly, 1, qy), row(ly, 2, qy));
+        let (rq, eq) = (row(raw, 0, qy), row(err, 0, qy));
+        for dx in -(RADIUS as isize)..=RADIUS as isize {
+            // The centres `x` whose neighbour `x + dx` is inside the row.
+            let (x0, x1) = ((-dx).max(0) as usize, (w as isize - dx.max(0)).max(0) as usize);
+            if x0 >= x1 {
+                continue;
+            }
+            let len = x1 - x0;
+            let q0 = (x0 as isize + dx) as usize;
+            let at = |v, o| span(v, o, len);
+            let (a0, a1, a2, l0, l1, l2) = (at(a0, x0), at(a1, x0), at(a2, x0), at(l0, x0), at(l1, x0), at(l2, x0));
+            let (b0, b1, b2, m0, m1, m2) = (at(b0, q0), at(b1, q0), at(b2, q0), at(m0, q0), at(m1, q0), at(m2, q0));
+            let (rq, eq) = (at(rq, q0), at(eq, q0));
+            let (vs, es, cnt) = (&mut vs[x0..x1], &mut es[x0..x1], &mut cnt[x0..x1]);
+            for k in 0..len {
+                let same = |ai: f32, aq: f32| (aq - ai).abs() <= ALBEDO_TOL * aq.abs().max(ai.abs()) + ALBEDO_FLOOR;
+                let range = ((m0[k] - l0[k]).abs() + (m1[k] - l1[k]).abs() + (m2[k] - l2[k]).abs()) / 3.0;
+                let ok = same(a0[k], b0[k]) & same(a1[k], b1[k]) & same(a2[k], b2[k]) & (range <= RANGE);
+                vs[k] += if ok { rq[k] } else { 0.0 };
+                es[k] += if ok { eq[k] } else { 0.0 };
+                cnt[k] += if ok { 1.0 } else { 0.0 };
+            }
+        }
+    }
+}
+
+/// [`window_row`] in the build for `isa`.
+///
+/// # Safety
+///
+/// `isa` must be one this CPU has ([`mcdenoise_core::Isa::check`]).
+unsafe fn window_row_on(
+    isa: mcdenoise_core::Isa,
+    win: &Window<'_>,
+    y: usize,
+    vs: &mut [f32],
+    es: &mut [f32],
+    cnt: &mut [f32],
+) {
+    #[cfg(target_arch = "x86_64")]
+    match isa {
+        // SAFETY: the caller's `isa` is one this CPU has.
+        mcdenoise_core::Isa::Avx512 => unsafe { window_row_avx512(win, y, vs, es, cnt) },
+        // SAFETY: as above.
+        mcdenoise_core::Isa::Avx2 => unsafe { window_row_avx2(win, y, vs, es, cnt) },
+        mcdenoise_core::Isa::Scalar => window_row(win, y, vs, es, cnt),
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = isa;
+        window_row(win, y, vs, es, cnt)
+    }
+}
+
+/// [`window_row`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn window_row_avx2(win: &Window<'_>, y: usize, vs: &mut [f32], es: &mut [f32], cnt: &mut [f32]) {
+    window_row(win, y, vs, es, cnt)
+}
+
+/// [`window_row`] compiled for AVX-512.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw,avx512dq,avx512vl,avx2")]
+unsafe fn window_row_avx512(win: &Window<'_>, y: usize, vs: &mut [f32], es: &mut [f32], cnt: &mut [f32]) {
+    window_row(win, y, vs, es, cnt)
 }
 
 /// `exposure` where it is positive and finite, else 1.
@@ -837,6 +942,64 @@ mod tests {
                     o[i],
                     y[i]
                 );
+            }
+        }
+    }
+
+    /// The window sums of every row, on every instruction set this CPU
+    /// has, against their definition in f64: over the 7x7 window clipped
+    /// to the image, the pixels whose albedo (per channel, within
+    /// ALBEDO_TOL of the larger plus ALBEDO_FLOOR) and mean `log1p` input
+    /// (within RANGE) match the centre's; the count exactly. Albedos and
+    /// inputs are drawn from a few levels, so that many neighbours match and
+    /// many do not, also on frames narrower than the window near its edges.
+    #[test]
+    fn window_sums_are_their_definition_on_every_path() {
+        for (w, h) in [(37, 9), (5, 4), (1, 8)] {
+            let n = w * h;
+            let mut s = 77u32 + w as u32;
+            let mut level = |k: f32| (lcg(&mut s) * k).floor() / k;
+            // Grey albedos of two levels, a little apart per channel.
+            let base: Vec<f32> = (0..n).map(|_| 0.1 + 0.5 * level(2.0)).collect();
+            let albedo: Vec<f32> = (0..3 * n).map(|i| base[i % n] + 0.01 * (i / n) as f32).collect();
+            let ly: Vec<f32> = (0..3 * n).map(|_| 0.5 * level(3.0)).collect();
+            let raw: Vec<f32> = (0..n).map(|_| level(100.0)).collect();
+            let err: Vec<f32> = (0..n).map(|_| 3.0 * level(100.0)).collect();
+            let win = Window { albedo: &albedo, ly: &ly, raw: &raw, err: &err, w, h };
+            for isa in mcdenoise_core::Isa::ALL.iter().copied().filter(|i| i.check().is_ok()) {
+                for y in 0..h {
+                    let (mut vs, mut es, mut cnt) = (vec![9.0f32; w], vec![9.0f32; w], vec![9.0f32; w]);
+                    // SAFETY: `isa` passed its check.
+                    unsafe { window_row_on(isa, &win, y, &mut vs, &mut es, &mut cnt) };
+                    for x in 0..w {
+                        let i = y * w + x;
+                        let (mut v, mut e, mut c) = (0.0f64, 0.0f64, 0.0f64);
+                        for qy in y.saturating_sub(3)..(y + 4).min(h) {
+                            for qx in x.saturating_sub(3)..(x + 4).min(w) {
+                                let q = qy * w + qx;
+                                let at = |b: &[f32], k: usize, p: usize| b[k * n + p] as f64;
+                                let same = (0..3).all(|k| {
+                                    let (ai, aq) = (at(&albedo, k, i), at(&albedo, k, q));
+                                    (aq - ai).abs() <= 0.2 * aq.max(ai) + 0.02 + 1e-6
+                                });
+                                let d = (0..3).map(|k| (at(&ly, k, q) - at(&ly, k, i)).abs()).sum::<f64>() / 3.0;
+                                if same && d <= 0.2 + 1e-6 {
+                                    v += raw[q] as f64;
+                                    e += err[q] as f64;
+                                    c += 1.0;
+                                }
+                            }
+                        }
+                        let at = format!("{isa:?}, {w}x{h}, pixel ({x}, {y})");
+                        assert_eq!(cnt[x] as f64, c, "{at}: count");
+                        assert!((vs[x] as f64 - v).abs() <= 1e-5 * v.max(1.0), "{at}: noise {} against {v}", vs[x]);
+                        assert!(
+                            (es[x] as f64 - e).abs() <= 1e-5 * e.max(1.0),
+                            "{at}: difference {} against {e}",
+                            es[x]
+                        );
+                    }
+                }
             }
         }
     }
