@@ -98,6 +98,11 @@ pub trait HostPrecision:
     fn choose_frac(_src: &[f32], _kind: Kind) -> i8 {
         0
     }
+    /// The largest `|v|` the storage holds at `frac` (beyond it, encoding
+    /// saturates): unbounded for f32.
+    fn store_max(_frac: i8) -> f32 {
+        f32::INFINITY
+    }
     /// Encodes f32 values into storage (saturating).
     fn encode(src: &[f32], dst: &mut [Self::Store], frac: i8);
     /// Decodes storage into f32.
@@ -153,6 +158,9 @@ pub fn store_is<P: HostPrecision, T: 'static>() -> bool {
 pub const F16_MAX: f32 = 65504.0;
 
 impl HostPrecision for F16 {
+    fn store_max(_frac: i8) -> f32 {
+        F16_MAX
+    }
     fn encode(src: &[f32], dst: &mut [half::f16], _frac: i8) {
         // Clamped a block at a time on the stack, then converted by `half`'s
         // slice conversion (F16C where the CPU has it, round to nearest even
@@ -177,6 +185,9 @@ impl HostPrecision for F16 {
 }
 
 impl HostPrecision for F16Arith {
+    fn store_max(_frac: i8) -> f32 {
+        F16_MAX
+    }
     fn encode(src: &[f32], dst: &mut [half::f16], frac: i8) {
         F16::encode(src, dst, frac)
     }
@@ -276,6 +287,9 @@ pub fn percentile_abs(src: &[f32], q: f64) -> f32 {
 
 impl HostPrecision for Fixed {
     const FIXED_POINT: bool = true;
+    fn store_max(frac: i8) -> f32 {
+        32767.0 * (-(frac as f32)).exp2()
+    }
     fn choose_frac(src: &[f32], kind: Kind) -> i8 {
         match kind {
             Kind::Unit => mcdenoise_core::fixed::KERNEL_FRAC,
@@ -299,6 +313,32 @@ impl HostPrecision for Fixed {
             *d = s.max(-32767) as f32 * scale;
         }
     }
+}
+
+/// Moves the part of each value of `c` beyond what `P` stores at `frac`
+/// ([`HostPrecision::store_max`]) into `ex` at the same index, so that
+/// `c + ex` is unchanged and `c` encodes without saturating. A filter's
+/// radiance is stored in a format that keeps its 99.9th percentile
+/// ([`Kind::Image`]): a bright region of more pixels than that (a window's
+/// reflection in a glossy floor, 0.14 % of the corridor's frames) would
+/// lose its top, and the learned filters put `ex` back at its pixel after
+/// filtering, as they put back a light's excess. Returns how many values
+/// moved; nothing moves in f32.
+pub fn keep_saturated<P: HostPrecision>(c: &mut [f32], ex: &mut [f32], frac: i8) -> usize {
+    let m = P::store_max(frac);
+    if !m.is_finite() {
+        return 0;
+    }
+    let mut moved = 0;
+    for (v, e) in c.iter_mut().zip(ex.iter_mut()) {
+        let k = v.clamp(-m, m);
+        if k != *v && !v.is_nan() {
+            *e += *v - k;
+            *v = k;
+            moved += 1;
+        }
+    }
+    moved
 }
 
 /// The largest `|v|` (NaN ignored; 0 for none), in eight lanes that vectorise.
@@ -472,6 +512,52 @@ mod tests {
             v.push((x - 0.5) * 2.0f32.powi(i % 40 - 20));
         }
         v
+    }
+
+    /// `keep_saturated` against its definition: in fixed point, on the
+    /// probes at a format 64 times finer than the 99.9th percentile's, every finite value beyond
+    /// the format's range moves (in f64, `c + ex` is the value within an
+    /// f32 rounding of it) and then encodes and decodes within half a step;
+    /// values inside stay bit for bit, as does NaN; f16 moves only what is
+    /// beyond its largest finite value; f32 moves nothing.
+    #[test]
+    fn saturated_parts_move_to_the_excess() {
+        let src = probes();
+        let frac = Fixed::choose_frac(&src, Kind::Image) + 6;
+        let m = 32767.0f64 / 2f64.powi(frac as i32);
+        let (mut c, mut ex) = (src.clone(), vec![0.0f32; src.len()]);
+        let moved = keep_saturated::<Fixed>(&mut c, &mut ex, frac);
+        let beyond = src.iter().filter(|v| v.abs() as f64 > m).count();
+        assert!(beyond > 100, "the probes reach beyond the format ({beyond})");
+        assert_eq!(moved, beyond);
+        let mut back = vec![0i16; c.len()];
+        Fixed::encode(&c, &mut back, frac);
+        let mut dec = vec![0.0f32; c.len()];
+        Fixed::decode(&back, &mut dec, frac);
+        let step = 1.0 / 2f64.powi(frac as i32);
+        for (i, &v) in src.iter().enumerate() {
+            if v.is_nan() {
+                assert!(c[i].is_nan() && ex[i] == 0.0, "NaN moved");
+                continue;
+            }
+            if (v.abs() as f64) <= m {
+                assert_eq!((c[i].to_bits(), ex[i]), (v.to_bits(), 0.0), "{v} inside the format moved");
+                continue;
+            }
+            assert_eq!(c[i].abs() as f64, m, "{v}: kept {}", c[i]);
+            if v.is_finite() {
+                let sum = c[i] as f64 + ex[i] as f64;
+                assert!((sum - v as f64).abs() <= 1e-6 * (v.abs() as f64), "{v}: {} + {} = {sum}", c[i], ex[i]);
+            }
+            assert!((dec[i] as f64 - c[i] as f64).abs() <= 0.5 * step, "{v}: {} decodes as {}", c[i], dec[i]);
+        }
+        let (mut c16, mut ex16) = (src.clone(), vec![0.0f32; src.len()]);
+        let moved16 = keep_saturated::<F16>(&mut c16, &mut ex16, 0);
+        assert_eq!(moved16, src.iter().filter(|v| v.abs() > F16_MAX).count());
+        assert!(c16.iter().all(|v| v.is_nan() || v.abs() <= F16_MAX));
+        let (mut c32, mut ex32) = (src.clone(), vec![0.0f32; src.len()]);
+        assert_eq!(keep_saturated::<F32>(&mut c32, &mut ex32, 0), 0);
+        assert!(c32.iter().zip(&src).all(|(a, b)| a.to_bits() == b.to_bits()) && ex32.iter().all(|&e| e == 0.0));
     }
 
     #[test]

@@ -791,7 +791,14 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
         let mut k1 = Planes::<P::Store>::new(TAPS, wh, hh).with_frac(kfrac);
         t.time("kernel softmax", || softmax::channel_softmax::<P>(isa, &l1, &mut k1.view_mut()))?;
         let (c1s, cts) = t.time("encode", || {
-            (store::<P>(&ctx.pool, 3, w, h, c1, Kind::Image), store::<P>(&ctx.pool, 3, w, h, ct, Kind::Image))
+            // What the 1-spp image's format cannot hold goes back at its
+            // pixel with its excess (the TA image's, like its excess, is
+            // dropped).
+            let f1 = P::frac_or_zero(P::choose_frac(c1, Kind::Image));
+            crate::runtime::precision::keep_saturated::<P>(c1, ex, f1);
+            let mut c1s = Planes::<P::Store>::new(3, w, h).with_frac(f1);
+            crate::runtime::precision::encode_par::<P>(&ctx.pool, c1, &mut c1s.data, f1);
+            (c1s, store::<P>(&ctx.pool, 3, w, h, ct, Kind::Image))
         });
         let mut d1 = Planes::<P::Store>::new(3, wh, hh).with_frac(c1s.frac);
         let mut f1 = Planes::<P::Store>::new(3, wh, hh).with_frac(c1s.frac);

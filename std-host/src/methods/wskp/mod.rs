@@ -604,8 +604,13 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
         // The filter's inputs and output in the precision (the f32 buffers
         // themselves in f32), kept from frame to frame.
         let xf = infer.input_frac();
-        let (cf, af) =
-            t.time("encode", || (P::choose_frac(&bufs.c, Kind::Image), P::choose_frac(&bufs.alb, Kind::Plain)));
+        let (cf, af) = t.time("encode", || {
+            let cf = P::choose_frac(&bufs.c, Kind::Image);
+            // What the radiance's format cannot hold goes back at its pixel
+            // with the excess.
+            crate::runtime::precision::keep_saturated::<P>(&mut bufs.c, &mut bufs.ex, cf);
+            (cf, P::choose_frac(&bufs.alb, Kind::Plain))
+        });
         let (xs, cs, als) = match (P::borrow_f32(&bufs.x), P::borrow_f32(&bufs.c), P::borrow_f32(&bufs.alb)) {
             (Some(x), Some(c), Some(a)) => (x, c, a),
             _ => {
