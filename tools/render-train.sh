@@ -12,7 +12,8 @@
 #   NICE=19                  niceness of the renders
 #
 # Layout: DEST/scenes/{train,val,test}_NNNN.json (+ assets/), and
-# DEST/{train,val,test}/{train,val,test}_NNNN/frame_NNNN.exr with ref/.
+# DEST/{train,val,test}/{train,val,test}_NNNN/frame_NNNN.exr with ref/;
+# DEST/manifest.json (tools/data_manifest.py) lists them when it finishes.
 #   train: 400 scenes x 8 frames, 192x144, inputs at 1-16 spp (half the
 #          scenes 1 spp), 128-spp targets (unbiased and noisy: the training
 #          loss is one whose minimiser a noisy target does not move), half
@@ -60,6 +61,8 @@ for part in $PARTS; do
             | grep -v '^frame ' || { echo "[render-train] $part/$name failed" | tee -a "$DEST/failed.txt" >&2; }
     done
 done
+# DEST/manifest.json: every sequence, its settings and the coverage totals.
+python3 "$HERE/data_manifest.py" "$DEST" --print
 if [ -s "$DEST/failed.txt" ]; then
     echo "[render-train] some sequences failed (listed in $DEST/failed.txt)" >&2
     exit 1
