@@ -952,7 +952,8 @@ mod tests {
     /// ALBEDO_TOL of the larger plus ALBEDO_FLOOR) and mean `log1p` input
     /// (within RANGE) match the centre's; the count exactly. Albedos and
     /// inputs are drawn from a few levels, so that many neighbours match and
-    /// many do not, also on frames narrower than the window near its edges.
+    /// many do not, also on frames narrower than the window near its edges;
+    /// and bit for bit the sums of a loop over each pixel's own window.
     #[test]
     fn window_sums_are_their_definition_on_every_path() {
         for (w, h) in [(37, 9), (5, 4), (1, 8)] {
@@ -991,6 +992,19 @@ mod tests {
                             }
                         }
                         let at = format!("{isa:?}, {w}x{h}, pixel ({x}, {y})");
+                        // Bit for bit the per-pixel loop's f32 sums (over
+                        // the window's rows, then columns, by `alike`).
+                        let (mut v32, mut e32) = (0.0f32, 0.0f32);
+                        for qy in y.saturating_sub(3)..(y + 4).min(h) {
+                            for qx in x.saturating_sub(3)..(x + 4).min(w) {
+                                let q = qy * w + qx;
+                                if alike(&albedo, &ly, n, i, q) {
+                                    v32 += raw[q];
+                                    e32 += err[q];
+                                }
+                            }
+                        }
+                        assert_eq!((vs[x].to_bits(), es[x].to_bits()), (v32.to_bits(), e32.to_bits()), "{at}: bits");
                         assert_eq!(cnt[x] as f64, c, "{at}: count");
                         assert!((vs[x] as f64 - v).abs() <= 1e-5 * v.max(1.0), "{at}: noise {} against {v}", vs[x]);
                         assert!(

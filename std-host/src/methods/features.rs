@@ -528,7 +528,8 @@ pub fn split_excess(
     let (need_wide, need_near) = {
         use rayon::prelude::*;
         let (keep, den, tight) = (&keep, &den, &tight);
-        let beyond = |p: usize| den[p] <= 0.5 && tight[p] == 0.0;
+        // (As the level's arms test them: NaN counts as neither.)
+        let beyond = |p: usize| matches!((den[p] > 0.5, tight[p] > 0.0), (false, false));
         pool.install(|| {
             let kept = || (0..n).into_par_iter().with_min_len(RUN).filter(|&p| keep[p] > 0.0);
             let near = kept().any(beyond);

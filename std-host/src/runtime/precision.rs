@@ -323,16 +323,21 @@ impl HostPrecision for Fixed {
 /// reflection in a glossy floor, 0.14 % of the corridor's frames) would
 /// lose its top, and the learned filters put `ex` back at its pixel after
 /// filtering, as they put back a light's excess. Returns how many values
-/// moved; nothing moves in f32.
+/// moved; nothing moves in f32, and values that are not finite stay (the
+/// encoding saturates them, as before).
 pub fn keep_saturated<P: HostPrecision>(c: &mut [f32], ex: &mut [f32], frac: i8) -> usize {
-    let m = P::store_max(frac);
+    keep_within(c, ex, P::store_max(frac))
+}
+
+/// [`keep_saturated`] at the bound `m` (`|v| <= m` stays).
+pub fn keep_within(c: &mut [f32], ex: &mut [f32], m: f32) -> usize {
     if !m.is_finite() {
         return 0;
     }
     let mut moved = 0;
     for (v, e) in c.iter_mut().zip(ex.iter_mut()) {
         let k = v.clamp(-m, m);
-        if k != *v && !v.is_nan() {
+        if k != *v && v.is_finite() {
             *e += *v - k;
             *v = k;
             moved += 1;
@@ -515,11 +520,12 @@ mod tests {
     }
 
     /// `keep_saturated` against its definition: in fixed point, on the
-    /// probes at a format 64 times finer than the 99.9th percentile's, every finite value beyond
-    /// the format's range moves (in f64, `c + ex` is the value within an
-    /// f32 rounding of it) and then encodes and decodes within half a step;
-    /// values inside stay bit for bit, as does NaN; f16 moves only what is
-    /// beyond its largest finite value; f32 moves nothing.
+    /// probes at a format 64 times finer than the 99.9th percentile's, every
+    /// finite value beyond the format's range moves (in f64, `c + ex` is the
+    /// value within an f32 rounding of it) and then encodes and decodes
+    /// within half a step; values inside stay bit for bit, as do NaN and the
+    /// infinities; f16 moves only the finite values beyond its largest
+    /// finite value; f32 moves nothing.
     #[test]
     fn saturated_parts_move_to_the_excess() {
         let src = probes();
@@ -527,7 +533,7 @@ mod tests {
         let m = 32767.0f64 / 2f64.powi(frac as i32);
         let (mut c, mut ex) = (src.clone(), vec![0.0f32; src.len()]);
         let moved = keep_saturated::<Fixed>(&mut c, &mut ex, frac);
-        let beyond = src.iter().filter(|v| v.abs() as f64 > m).count();
+        let beyond = src.iter().filter(|v| v.is_finite() && v.abs() as f64 > m).count();
         assert!(beyond > 100, "the probes reach beyond the format ({beyond})");
         assert_eq!(moved, beyond);
         let mut back = vec![0i16; c.len()];
@@ -544,17 +550,19 @@ mod tests {
                 assert_eq!((c[i].to_bits(), ex[i]), (v.to_bits(), 0.0), "{v} inside the format moved");
                 continue;
             }
-            assert_eq!(c[i].abs() as f64, m, "{v}: kept {}", c[i]);
-            if v.is_finite() {
-                let sum = c[i] as f64 + ex[i] as f64;
-                assert!((sum - v as f64).abs() <= 1e-6 * (v.abs() as f64), "{v}: {} + {} = {sum}", c[i], ex[i]);
+            if !v.is_finite() {
+                assert_eq!((c[i], ex[i]), (v, 0.0), "an infinity moved");
+                continue;
             }
+            assert_eq!(c[i].abs() as f64, m, "{v}: kept {}", c[i]);
+            let sum = c[i] as f64 + ex[i] as f64;
+            assert!((sum - v as f64).abs() <= 1e-6 * (v.abs() as f64), "{v}: {} + {} = {sum}", c[i], ex[i]);
             assert!((dec[i] as f64 - c[i] as f64).abs() <= 0.5 * step, "{v}: {} decodes as {}", c[i], dec[i]);
         }
         let (mut c16, mut ex16) = (src.clone(), vec![0.0f32; src.len()]);
         let moved16 = keep_saturated::<F16>(&mut c16, &mut ex16, 0);
-        assert_eq!(moved16, src.iter().filter(|v| v.abs() > F16_MAX).count());
-        assert!(c16.iter().all(|v| v.is_nan() || v.abs() <= F16_MAX));
+        assert_eq!(moved16, src.iter().filter(|v| v.is_finite() && v.abs() > F16_MAX).count());
+        assert!(c16.iter().all(|v| !v.is_finite() || v.abs() <= F16_MAX));
         let (mut c32, mut ex32) = (src.clone(), vec![0.0f32; src.len()]);
         assert_eq!(keep_saturated::<F32>(&mut c32, &mut ex32, 0), 0);
         assert!(c32.iter().zip(&src).all(|(a, b)| a.to_bits() == b.to_bits()) && ex32.iter().all(|&e| e == 0.0));

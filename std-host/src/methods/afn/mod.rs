@@ -705,11 +705,6 @@ impl<P: HostPrecision> Afn<P> {
     }
 }
 
-/// f32 planes in precision `P` with the format of `kind`.
-fn store<P: HostPrecision>(pool: &Pool, c: usize, w: usize, h: usize, d: &[f32], kind: Kind) -> Planes<P::Store> {
-    Planes::<P::Store>::encode_as_par::<P>(pool, c, w, h, d, kind)
-}
-
 impl<P: HostPrecision> Denoiser for Afn<P> {
     fn name(&self) -> &'static str {
         "afn"
@@ -791,14 +786,26 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
         let mut k1 = Planes::<P::Store>::new(TAPS, wh, hh).with_frac(kfrac);
         t.time("kernel softmax", || softmax::channel_softmax::<P>(isa, &l1, &mut k1.view_mut()))?;
         let (c1s, cts) = t.time("encode", || {
-            // What the 1-spp image's format cannot hold goes back at its
-            // pixel with its excess (the TA image's, like its excess, is
-            // dropped).
-            let f1 = P::frac_or_zero(P::choose_frac(c1, Kind::Image));
-            crate::runtime::precision::keep_saturated::<P>(c1, ex, f1);
+            // What the two images' formats cannot both hold (beyond the
+            // smaller of their bounds) goes back at its pixel with the
+            // 1-spp image's excess; the TA image's part beyond it is dropped,
+            // like its excess. (Each kept at its own bound, a pixel beyond
+            // both would come out by the fusion's share of their
+            // difference too bright or too dark.)
+            let (f1, ft) =
+                (P::frac_or_zero(P::choose_frac(c1, Kind::Image)), P::frac_or_zero(P::choose_frac(ct, Kind::Image)));
+            let m = P::store_max(f1).min(P::store_max(ft));
+            crate::runtime::precision::keep_within(c1, ex, m);
+            if m.is_finite() {
+                for v in ct.iter_mut() {
+                    *v = v.clamp(-m, m);
+                }
+            }
             let mut c1s = Planes::<P::Store>::new(3, w, h).with_frac(f1);
             crate::runtime::precision::encode_par::<P>(&ctx.pool, c1, &mut c1s.data, f1);
-            (c1s, store::<P>(&ctx.pool, 3, w, h, ct, Kind::Image))
+            let mut cts = Planes::<P::Store>::new(3, w, h).with_frac(ft);
+            crate::runtime::precision::encode_par::<P>(&ctx.pool, ct, &mut cts.data, ft);
+            (c1s, cts)
         });
         let mut d1 = Planes::<P::Store>::new(3, wh, hh).with_frac(c1s.frac);
         let mut f1 = Planes::<P::Store>::new(3, wh, hh).with_frac(c1s.frac);
