@@ -238,36 +238,32 @@ def test_pair_matches_the_command_line():
         mcdenoise.denoise(f[0]["color"], **buffers(f[0]), method="cross", pair="first")
 
 
-def test_ta_reject_matches_the_command_line():
-    # Off and on: the keyword reaches the accumulation as --ta-reject does.
+def ta_option_matches_the_command_line(cli, kw, what):
+    # TA with a CLI option and with its keyword: equal frame by frame; and
+    # the option changes some frame of the sample against TA's default.
     with tempfile.TemporaryDirectory() as out:
-        subprocess.run([str(BIN), "denoise", "--quiet", "--float", "--threads", "2", "--method", "ta",
-                        "--ta-reject", "0", str(SAMPLE), "-o", out], check=True)
-        d = mcdenoise.Denoiser("ta", threads=2, ta_reject=0.0)
-        on = mcdenoise.Denoiser("ta", threads=2)
+        subprocess.run([str(BIN), "denoise", "--quiet", "--float", "--threads", "2", "--method", "ta"] + cli
+                       + [str(SAMPLE), "-o", out], check=True)
+        d = mcdenoise.Denoiser("ta", threads=2, **kw)
+        default = mcdenoise.Denoiser("ta", threads=2)
         differs = False
         for i, f in enumerate(frames()):
             got = d.denoise(f["color"], **buffers(f))
             want = read_rgb(pathlib.Path(out) / ("frame_%04d.exr" % i))
-            assert np.array_equal(got, want), "ta_reject=0 frame %d differs from the CLI" % i
-            differs |= not np.array_equal(on.denoise(f["color"], **buffers(f)), got)
-        assert differs, "the rejection changes some frame of the sample"
+            assert np.array_equal(got, want), "%s frame %d differs from the CLI" % (what, i)
+            differs |= not np.array_equal(default.denoise(f["color"], **buffers(f)), got)
+        assert differs, "%s changes no frame of the sample against TA's default" % what
+
+
+def test_ta_reject_matches_the_command_line():
+    # Off (the default is on): the keyword reaches the accumulation as
+    # --ta-reject does.
+    ta_option_matches_the_command_line(["--ta-reject", "0"], {"ta_reject": 0.0}, "ta_reject=0")
 
 
 def test_ta_reject_scales_matches_the_command_line():
-    # ta at three scales as --ta-reject-scales 3 gives it; a count outside
-    # 1 to 3 is refused, naming the keyword.
-    with tempfile.TemporaryDirectory() as out:
-        subprocess.run([str(BIN), "denoise", "--quiet", "--float", "--threads", "2", "--method", "ta",
-                        "--ta-reject-scales", "3", str(SAMPLE), "-o", out], check=True)
-        d = mcdenoise.Denoiser("ta", threads=2, ta_reject_scales=3)
-        one = mcdenoise.Denoiser("ta", threads=2)
-        differs = False
-        for i, f in enumerate(frames()):
-            got = d.denoise(f["color"], **buffers(f))
-            want = read_rgb(pathlib.Path(out) / ("frame_%04d.exr" % i))
-            assert np.array_equal(got, want), "ta_reject_scales=3 frame %d differs from the CLI" % i
-            differs |= not np.array_equal(one.denoise(f["color"], **buffers(f)), got)
-        assert differs, "three scales change some frame of the sample against ta's one"
+    # TA at three scales as --ta-reject-scales 3 gives it (the default is
+    # one); a count outside 1 to 3 is refused, naming the keyword.
+    ta_option_matches_the_command_line(["--ta-reject-scales", "3"], {"ta_reject_scales": 3}, "ta_reject_scales=3")
     with pytest.raises(ValueError, match="ta_reject_scales: expected"):
         mcdenoise.Denoiser("ta", ta_reject_scales=4)

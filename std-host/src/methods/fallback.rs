@@ -422,9 +422,11 @@ fn window_row(win: &Window<'_>, y: usize, vs: &mut [f32], es: &mut [f32], cnt: &
             let (rq, eq) = (at(rq, q0), at(eq, q0));
             let (vs, es, cnt) = (&mut vs[x0..x1], &mut es[x0..x1], &mut cnt[x0..x1]);
             for k in 0..len {
-                let same = |ai: f32, aq: f32| (aq - ai).abs() <= ALBEDO_TOL * aq.abs().max(ai.abs()) + ALBEDO_FLOOR;
                 let range = ((m0[k] - l0[k]).abs() + (m1[k] - l1[k]).abs() + (m2[k] - l2[k]).abs()) / 3.0;
-                let ok = same(a0[k], b0[k]) & same(a1[k], b1[k]) & same(a2[k], b2[k]) & (range <= RANGE);
+                let ok = same_albedo(a0[k], b0[k])
+                    & same_albedo(a1[k], b1[k])
+                    & same_albedo(a2[k], b2[k])
+                    & (range <= RANGE);
                 vs[k] += if ok { rq[k] } else { 0.0 };
                 es[k] += if ok { eq[k] } else { 0.0 };
                 cnt[k] += if ok { 1.0 } else { 0.0 };
@@ -628,16 +630,23 @@ fn region_levels(m: &mut [f32], scratch: &mut [f32], w: usize, h: usize) {
     }
 }
 
+/// Whether one channel of a centre's albedo `ai` and a neighbour's `aq` are
+/// the same surface's: within [`ALBEDO_TOL`] of the larger plus
+/// [`ALBEDO_FLOOR`]. Shared by [`alike`] and [`window_row`], so that the
+/// vectorised window sums and their per-pixel reference test one rule.
+#[inline(always)]
+fn same_albedo(ai: f32, aq: f32) -> bool {
+    (aq - ai).abs() <= ALBEDO_TOL * aq.abs().max(ai.abs()) + ALBEDO_FLOOR
+}
+
 /// Whether pixel `q` counts as pixel `i`'s surface at its level: the same
 /// albedo (within [`ALBEDO_TOL`] of the larger, per channel, plus
 /// [`ALBEDO_FLOOR`]) and an input within [`RANGE`] (mean over the channels
 /// of `ly`, the exposure-normalised `log1p` colour). `n`: pixels per plane.
 #[inline]
 fn alike(albedo: &[f32], ly: &[f32], n: usize, i: usize, q: usize) -> bool {
-    (0..3).all(|c| {
-        let (ai, aq) = (albedo[c * n + i], albedo[c * n + q]);
-        (aq - ai).abs() <= ALBEDO_TOL * aq.abs().max(ai.abs()) + ALBEDO_FLOOR
-    }) && (0..3).map(|c| (ly[c * n + q] - ly[c * n + i]).abs()).sum::<f32>() / 3.0 <= RANGE
+    (0..3).all(|c| same_albedo(albedo[c * n + i], albedo[c * n + q]))
+        && (0..3).map(|c| (ly[c * n + q] - ly[c * n + i]).abs()).sum::<f32>() / 3.0 <= RANGE
 }
 
 /// The one-estimate noise the window sums: `0.84 |y - m|^2`, mean over the
