@@ -3,9 +3,9 @@
 # scenes, with the denoiser as users run it (fallback on): the `val` scenes
 # and the `hi` scenes no run trains on (hi_0044-hi_0063), one estimate
 # (`--pair first`) and the pair (the default). Prints each scene's PSNR dB
-# and relMSE before and after, then the means and how many scenes got
-# better. The rule docs/training.md applies: bundle the new file if it wins
-# here; look at the foreign set only afterwards.
+# and relMSE before and after, then the mean PSNR of each part and how many
+# of its scenes got better. The rule docs/training.md applies: bundle the
+# new file if it wins here; look at the foreign set only afterwards.
 #
 # Usage: bash tools/choose-weights.sh MODEL OLD.safetensors NEW.safetensors [DATA]
 #   MODEL: wskp3, wskp6 or afn; DATA: the generator's data (default /work/data/gen)
@@ -14,7 +14,7 @@ set -euo pipefail
 HERE="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 ROOT="$(dirname "$HERE")"
 BIN="${MCDENOISE:-$ROOT/target/release/mcdenoise}"
-[ $# -ge 3 ] || { sed -n '2,13p' "$0" >&2; exit 2; }
+[ $# -ge 3 ] || { sed -n '2,12p' "$0" >&2; exit 2; }
 MODEL="$1"; OLD="$2"; NEW="$3"; DATA="${4:-/work/data/gen}"
 case "$MODEL" in
     wskp3) method=(--method wskp --layers 3) ;;
@@ -47,9 +47,12 @@ for pair in first mean; do
     echo "== $MODEL, --pair $pair: scene, PSNR dB and relMSE before -> after"
     for seq in "${seqs[@]}"; do
         a="$(run "$OLD" "$seq" "$pair")"; b="$(run "$NEW" "$seq" "$pair")"
-        [ -n "$a" ] && [ -n "$b" ] && echo "$(basename "$seq") $a $b"
+        if [ -n "$a" ] && [ -n "$b" ]; then echo "$(basename "$seq") $a $b"; fi
     done | tee "$tmp/$pair.txt"
     awk '{ g = ($1 ~ /^val/) ? "val" : "hi"; d = $4 - $2; n[g]++; s[g] += d; a[g] += $2; b[g] += $4; if (d > 0) w[g]++ }
-         END { for (g in n) printf "%s (%d): %.2f -> %.2f dB, %+.3f, better on %d\n", g, n[g], a[g] / n[g], b[g] / n[g], s[g] / n[g], w[g] + 0, n[g] }' \
+         END { split("val hi", order, " ")
+               for (k = 1; k <= 2; k++) { g = order[k]; if (n[g])
+                   printf "%s (%d): mean PSNR %.2f -> %.2f dB, %+.3f, better on %d of %d\n",
+                          g, n[g], a[g] / n[g], b[g] / n[g], s[g] / n[g], w[g] + 0, n[g] } }' \
         "$tmp/$pair.txt"
 done
