@@ -380,6 +380,43 @@ pub fn clamp_plan(plan: &mut Plan, k: f32, why: &str) {
     stage_plan(plan, CLAMP_STAGE, k > 0.0, why);
 }
 
+/// The accumulation's builders of a learned method whose struct holds its
+/// accumulation in `ta` and its plan in `plan` (AFN and WSKP): the history
+/// clamp, the rejection's threshold and its scales, each recorded in the
+/// plan.
+macro_rules! ta_builders {
+    () => {
+        /// With the accumulation's history clamp of width `k` (0: off; unless
+        /// told, the weights' own, `ta_clamp`: see [`crate::methods::ta_clamp_for`]).
+        ///
+        /// # Errors
+        /// A width outside `[0, 1e6]`.
+        pub fn with_ta_clamp(mut self, k: f32) -> crate::error::Result<Self> {
+            self.ta = self.ta.with_clamp(k)?;
+            crate::methods::basic::clamp_plan(&mut self.plan, k, "--ta-clamp 0, or weights trained with it off");
+            Ok(self)
+        }
+
+        /// With the accumulation's history rejection at `z` standard errors
+        /// ([`crate::methods::basic::reject_stale`]; 0: off).
+        pub fn with_ta_reject(mut self, z: f32) -> crate::error::Result<Self> {
+            self.ta = self.ta.with_reject(z)?;
+            crate::methods::basic::reject_plan(&mut self.plan, z, self.ta.reject_scales());
+            Ok(self)
+        }
+
+        /// With the accumulation's history rejection testing the first `k`
+        /// of [`crate::methods::basic::REJECT_SCALES`] (default
+        /// [`crate::methods::basic::LEARNED_TA_REJECT_SCALES`]).
+        pub fn with_ta_reject_scales(mut self, k: usize) -> crate::error::Result<Self> {
+            self.ta = self.ta.with_reject_scales(k)?;
+            crate::methods::basic::reject_plan(&mut self.plan, self.ta.reject(), k);
+            Ok(self)
+        }
+    };
+}
+pub(crate) use ta_builders;
+
 /// The history clamp a learned method's weights were trained with
 /// (metadata `ta_clamp`; `None` for files made before it, whose inputs had
 /// no clamp).

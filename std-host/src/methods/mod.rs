@@ -27,6 +27,7 @@ pub mod wide;
 pub mod wskp;
 
 pub use atrous::Atrous;
+pub(crate) use basic::ta_builders;
 
 pub use basic::{
     check_clamp, check_reject, check_reject_scales, clamp_plan, reject_plan, reject_stale, scene_scale, ta_clamp_for,

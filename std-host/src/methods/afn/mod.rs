@@ -523,33 +523,7 @@ impl<P: HostPrecision> Afn<P> {
         Self::from_params(first, params, refine, variant)?.with_ta_clamp(crate::methods::basic::ta_clamp_for(file)?)
     }
 
-    /// With the accumulation's history clamp of width `k` (0: off; unless
-    /// told, the weights' own, `ta_clamp`: see [`crate::methods::ta_clamp_for`]).
-    ///
-    /// # Errors
-    /// A width outside `[0, 1e6]`.
-    pub fn with_ta_clamp(mut self, k: f32) -> Result<Self> {
-        self.ta = self.ta.with_clamp(k)?;
-        crate::methods::basic::clamp_plan(&mut self.plan, k, "--ta-clamp 0, or weights trained with it off");
-        Ok(self)
-    }
-
-    /// With the accumulation's history rejection at `z` standard errors
-    /// ([`crate::methods::basic::reject_stale`]; 0: off).
-    pub fn with_ta_reject(mut self, z: f32) -> Result<Self> {
-        self.ta = self.ta.with_reject(z)?;
-        crate::methods::basic::reject_plan(&mut self.plan, z, self.ta.reject_scales());
-        Ok(self)
-    }
-
-    /// With the accumulation's history rejection testing the first `k`
-    /// of [`crate::methods::basic::REJECT_SCALES`] (default
-    /// [`crate::methods::basic::LEARNED_TA_REJECT_SCALES`]).
-    pub fn with_ta_reject_scales(mut self, k: usize) -> Result<Self> {
-        self.ta = self.ta.with_reject_scales(k)?;
-        crate::methods::basic::reject_plan(&mut self.plan, self.ta.reject(), k);
-        Ok(self)
-    }
+    crate::methods::ta_builders!();
 
     /// Memory per frame (see [`crate::runtime::memory`]): the accumulation, the f32
     /// buffers kept, the kernel predictor's tensors (kept for the next frame:
