@@ -16,6 +16,8 @@
 #   BAND=0                     the band term's weight beside it (mcdenoise train --band-weight)
 #   FIRST=0                    the share of crops from first frames, without history
 #                              (mcdenoise train --first-frames)
+#   STRIDE=1                   one frame in STRIDE of each sequence made a sample (mcdenoise
+#                              train --frame-stride): 2 fits twice the scenes in memory
 #   TA_CLAMP=1                 the accumulation's history clamp (mcdenoise train --ta-clamp; 0: off,
 #                              as the weights of before it: resume their checkpoints with 0)
 #   TRAIN=DIR VAL=DIR          other training / validation directories (default DATA/train, DATA/val)
@@ -41,7 +43,7 @@ VAL="${VAL:-$DATA/val}"
 mkdir -p "$OUT"
 common=(--data "$TRAIN" --val "$VAL" --batch 8 --crop 128 --threads "$THREADS" --seed 1
     --checkpoint-minutes 5 --lr-schedule cosine --lr "${LR:-1e-3}" --clip "${CLIP:-0.5}" --loss "${LOSS:-l1-log}" --band-weight "${BAND:-0}"
-    --first-frames "${FIRST:-0}"
+    --first-frames "${FIRST:-0}" --frame-stride "${STRIDE:-1}"
     --ta-clamp "${TA_CLAMP:-1}")
 for m in $MODELS; do
     case "$m" in

@@ -228,6 +228,10 @@ fn estimates(s: &str) -> std::result::Result<usize, String> {
     whole(s, 1, 2).map(|v| v as usize)
 }
 
+fn frame_stride(s: &str) -> std::result::Result<usize, String> {
+    whole(s, 1, 1000).map(|v| v as usize)
+}
+
 fn clip(s: &str) -> std::result::Result<f32, String> {
     real(s, 0.0, 1e9).map(|v| v as f32)
 }
@@ -619,6 +623,11 @@ struct TrainCli {
     /// history and the filters see the 1-spp frame itself (0: every frame alike)
     #[arg(long, value_name = "P", default_value = "0", value_parser = unit)]
     first_frames: f32,
+    /// Make one frame in K of each sequence a sample (every frame still accumulated; the first
+    /// frame kept turns with each copy of the sequence): the samples fill memory (AFN 72 bytes a
+    /// pixel, WSKP 46), so a stride of 2 trains on twice the scenes in it
+    #[arg(long, value_name = "K", default_value = "1", value_parser = frame_stride)]
+    frame_stride: usize,
     /// Gradient norm clip (0: off)
     #[arg(long, value_name = "F", default_value = "0", value_parser = clip)]
     clip: f32,
@@ -831,6 +840,7 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Command> {
             a.estimates = t.estimates;
             a.emulate_spp = t.emulate_spp.0;
             a.first_frames = t.first_frames;
+            a.frame_stride = t.frame_stride;
             a.schedule = t.lr_schedule;
             Command::Train(a)
         }

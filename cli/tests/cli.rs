@@ -329,6 +329,22 @@ fn train_skips_incomplete_and_broken_sequences() {
     assert!(err.contains("c_broken"), "{err}");
     assert!(err.contains("1 sequences"), "{err}");
     assert!(w.exists());
+    // With --frame-stride 2, each copy of the two-frame sequence (the
+    // estimates, swapped, emulated spp) keeps one of its frames: half the
+    // samples.
+    let samples = |err: &str| -> usize {
+        let at = err.find(" samples (").unwrap_or_else(|| panic!("no sample count in {err}"));
+        err[..at].rsplit(' ').next().unwrap().parse().unwrap()
+    };
+    let all = samples(&err);
+    let mut a = args(&data);
+    a.extend(["--frame-stride".to_string(), "2".into()]);
+    let out = run(&a.iter().map(|s| s.as_str()).collect::<Vec<_>>());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(all >= 2 && all % 2 == 0, "{all} samples of two-frame copies");
+    assert_eq!(samples(&err), all / 2, "{err}");
+    assert!(err.contains("one frame in 2"), "{err}");
     std::fs::remove_dir_all(&good).unwrap();
     let a = args(&data);
     let out = run(&a.iter().map(|s| s.as_str()).collect::<Vec<_>>());
@@ -664,12 +680,16 @@ fn emulate_int8_is_refused_where_it_means_nothing() {
     assert!(!o.exists() || std::fs::read_dir(&o).unwrap().next().is_none(), "nothing written");
 }
 
-/// A band weight that is not a number from 0 to 100, or a first-frames
-/// share that is not one from 0 to 1, names the flag, exit 2.
+/// A band weight that is not a number from 0 to 100, a first-frames
+/// share that is not one from 0 to 1, or a frame stride that is not a
+/// whole number from 1 to 1000, names the flag, exit 2.
 #[test]
 fn train_names_a_bad_band_weight_or_first_frames_share() {
-    for (flag, bads) in [("--band-weight", ["-1", "nan", "x", "101"]), ("--first-frames", ["-0.1", "nan", "x", "1.5"])]
-    {
+    for (flag, bads) in [
+        ("--band-weight", ["-1", "nan", "x", "101"]),
+        ("--first-frames", ["-0.1", "nan", "x", "1.5"]),
+        ("--frame-stride", ["0", "1.5", "x", "1001"]),
+    ] {
         for bad in bads {
             let arg = format!("{flag}={bad}");
             let out = run(&["train", "--data", ".", "-o", "w.safetensors", "--steps", "1", &arg]);

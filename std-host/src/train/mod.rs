@@ -105,6 +105,14 @@ pub struct TrainArgs {
     /// temporal history: the accumulation is the 1-spp frame itself), the
     /// rest uniformly over every sample (0: every crop uniformly).
     pub first_frames: f32,
+    /// One frame in `frame_stride` of each copy of a sequence made a
+    /// sample (1: every frame). Every frame is still accumulated in order,
+    /// so the kept ones have their history; the first kept frame turns with
+    /// each copy (copy `c` keeps frames `i` with `i % stride == c %
+    /// stride`), so every frame position is drawn. The samples (in f16: 36
+    /// planes a pixel for AFN, 23 for WSKP) are what fills memory: a stride
+    /// of 2 holds twice the scenes in it.
+    pub frame_stride: usize,
 }
 
 /// How the learning rate moves over a run of `--steps` steps.
@@ -168,6 +176,7 @@ impl Default for TrainArgs {
             estimates: 2,
             emulate_spp: vec![4, 16, 64],
             first_frames: 0.0,
+            frame_stride: 1,
             schedule: Schedule::Cosine,
             ta_clamp: crate::methods::TA_CLAMP,
         }
@@ -296,6 +305,14 @@ fn crop(sample: &Sample, at: CropAt, s: usize, p0: usize, p1: usize, dst: &mut [
     }
 }
 
+/// Whether copy `copy` of a sequence (counted over the run) makes its frame
+/// `i` a sample at `--frame-stride stride`: the kept frames start at
+/// `copy % stride`, so any `stride` consecutive copies keep every frame
+/// position once.
+fn stride_keeps(copy: usize, stride: usize, i: usize) -> bool {
+    i % stride == copy % stride
+}
+
 /// A crop's place: with probability `first` from one of the samples
 /// `firsts` (the sequences' first frames), else from any sample. With
 /// `first` 0 the generator's draws are those of a run without the option.
@@ -402,18 +419,23 @@ impl Model {
             Model::Afn(_) => (afn::CIN, afn::buf::DATA_PLANES),
         }
     }
-    /// A sequence's samples, appended to `out` (each frame's data in f16).
+    /// A sequence's samples, of the frames `keep` says (every frame
+    /// accumulated), appended to `out` (each frame's data in f16).
     fn samples(
         self,
         s: &Sequence,
         pool: &crate::runtime::par::Pool,
         (isa, clamp): (Isa, f32),
+        keep: &dyn Fn(usize) -> bool,
         out: &mut Vec<Sample>,
     ) -> Result<()> {
         let (cin, own) = self.planes();
         {
             let ta = accumulate(s, pool.threads(), isa, clamp)?;
-            for ((f, t), r) in s.frames.iter().zip(&ta).zip(&s.refs) {
+            for (i, ((f, t), r)) in s.frames.iter().zip(&ta).zip(&s.refs).enumerate() {
+                if !keep(i) {
+                    continue;
+                }
                 let n = f.width * f.height;
                 let mut data = vec![0.0f32; (cin + own) * n];
                 let (x, rest) = data.split_at_mut(cin * n);
@@ -543,6 +565,13 @@ pub fn run(a: &TrainArgs) -> Result<()> {
     // The samples that are a sequence's first frame (no history).
     let mut firsts: Vec<usize> = Vec::new();
     let mut nseqs = 0;
+    // Copies of sequences made samples so far (each turns the first frame
+    // `--frame-stride` keeps).
+    let mut copies = 0usize;
+    let stride = a.frame_stride;
+    if stride == 0 {
+        return Err(HostError::Usage("--frame-stride must be at least 1".into()));
+    }
     let mut skipped_seqs = Vec::new();
     for (k, d) in dirs.iter().enumerate() {
         // A sequence still being rendered (a frame without its reference)
@@ -560,13 +589,20 @@ pub fn run(a: &TrainArgs) -> Result<()> {
                 continue;
             }
         };
-        // One copy of the sequence's samples: its first frame's index kept,
-        // each frame's origin named (`what`: which copy).
+        // One copy of the sequence's samples (the frames the stride keeps):
+        // its first frame's index kept where it is one, each frame's origin
+        // named (`what`: which copy).
         let mut add = |seq: &Sequence, what: &str| -> Result<()> {
             let n0 = samples.len();
-            model.samples(seq, &pool, (a.isa, a.ta_clamp), &mut samples)?;
-            firsts.push(n0);
-            origins.extend((0..samples.len() - n0).map(|j| format!("{} frame {j}{what}", d.display())));
+            let copy = copies;
+            copies += 1;
+            let keep = |i: usize| stride_keeps(copy, stride, i);
+            model.samples(seq, &pool, (a.isa, a.ta_clamp), &keep, &mut samples)?;
+            if keep(0) {
+                firsts.push(n0);
+            }
+            let kept = (0..seq.frames.len()).filter(|&i| keep(i));
+            origins.extend(kept.map(|j| format!("{} frame {j}{what}", d.display())));
             Ok(())
         };
         add(&seq, "")?;
@@ -611,9 +647,10 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         None => Vec::new(),
     };
     eprintln!(
-        "{} sequences, {} samples (frames x estimates) loaded and accumulated in {:.1} s; validation: {} frames (input {:.2} dB)",
+        "{} sequences, {} samples (frames x estimates{}) loaded and accumulated in {:.1} s; validation: {} frames (input {:.2} dB)",
         nseqs,
         samples.len(),
+        if stride > 1 { format!(", one frame in {stride}") } else { String::new() },
         t0.elapsed().as_secs_f64(),
         val.iter().map(|v| v.frames.len()).sum::<usize>(),
         input_psnr(&val)
@@ -895,6 +932,26 @@ mod tests {
         assert!(want.is_finite());
         let got = input_psnr(std::slice::from_ref(&seq));
         assert!((got - want).abs() < 1e-9, "{got} vs {want}");
+    }
+
+    /// `--frame-stride`: any `stride` consecutive copies of an 8-frame
+    /// sequence keep each frame exactly once between them, one copy
+    /// keeps `ceil((8 - offset) / stride)` frames, and stride 1 keeps all.
+    #[test]
+    fn frame_stride_covers_every_frame_position() {
+        for stride in 1..=5usize {
+            for first in 0..7usize {
+                let mut times = [0usize; 8];
+                for copy in first..first + stride {
+                    let kept: Vec<usize> = (0..8).filter(|&i| stride_keeps(copy, stride, i)).collect();
+                    let offset = copy % stride;
+                    assert_eq!(kept.len(), (8 - offset).div_ceil(stride), "stride {stride}, copy {copy}");
+                    kept.iter().for_each(|&i| times[i] += 1);
+                }
+                assert_eq!(times, [1; 8], "stride {stride}, copies {first}..");
+            }
+        }
+        assert!((0..8).all(|i| stride_keeps(5, 1, i)));
     }
 
     /// `--first-frames`: at 0 the draws are a plain uniform draw's (runs
