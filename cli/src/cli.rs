@@ -624,7 +624,7 @@ struct TrainCli {
     #[arg(long, value_name = "P", default_value = "0", value_parser = unit)]
     first_frames: f32,
     /// Make one frame in K of each sequence a sample (every frame still accumulated; the first
-    /// frame kept turns with each copy of the sequence): the samples fill memory (AFN 72 bytes a
+    /// frame kept turns with each copy of the sequence): the samples fill memory (AFN 58 bytes a
     /// pixel, WSKP 46), so a stride of 2 trains on twice the scenes in it
     #[arg(long, value_name = "K", default_value = "1", value_parser = frame_stride)]
     frame_stride: usize,

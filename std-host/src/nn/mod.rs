@@ -545,6 +545,11 @@ impl Workspace {
         &mut self.acts[0]
     }
 
+    /// The input tensor and the model's `aux` buffer `k`, to fill together.
+    pub fn input_and_aux_mut(&mut self, k: usize) -> (&mut [f32], &mut [f32]) {
+        (&mut self.acts[0], &mut self.aux[k])
+    }
+
     /// The output tensor after [`Workspace::forward`].
     pub fn output(&self) -> &[f32] {
         self.acts.last().map_or(&[], |v| &v[..])

@@ -109,7 +109,7 @@ pub struct TrainArgs {
     /// sample (1: every frame). Every frame is still accumulated in order,
     /// so the kept ones have their history; the first kept frame turns with
     /// each copy (copy `c` keeps frames `i` with `i % stride == c %
-    /// stride`), so every frame position is drawn. The samples (in f16: 36
+    /// stride`), so every frame position is drawn. The samples (in f16: 29
     /// planes a pixel for AFN, 23 for WSKP) are what fills memory: a stride
     /// of 2 holds twice the scenes in it.
     pub frame_stride: usize,
@@ -251,9 +251,10 @@ pub fn accumulate(seq: &Sequence, threads: usize, isa: Isa, clamp: f32) -> Resul
     seq.frames.iter().map(|f| ta.denoise(f, &mut ctx, &mut t)).collect()
 }
 
-/// One frame's training tensors: `planes` of `w x h`, the network's input
-/// first (`cin` planes), then the model's own; held in f16 (thousands of
-/// frames fit in memory), read back to f32 crop by crop.
+/// One frame's training tensors: planes of `w x h`, the network's input
+/// first (`cin` planes), then the model's own less those that repeat an
+/// input plane ([`Model::shared`]); held in f16 (thousands of frames fit
+/// in memory), read back to f32 crop by crop ([`Model::fill_crop`]).
 struct Sample {
     w: usize,
     h: usize,
@@ -412,11 +413,42 @@ impl Model {
             }
         }
     }
-    /// Planes of a sample: the network input, then the model's own.
+    /// Planes of a crop: the network input, then the model's own.
     fn planes(self) -> (usize, usize) {
         match self {
             Model::Wskp(..) => (wskp::CIN, wskp::DATA_PLANES),
             Model::Afn(_) => (afn::CIN, afn::buf::DATA_PLANES),
+        }
+    }
+    /// The model's own planes that repeat input planes, held once in a
+    /// sample: `(input plane, own plane, count)`. AFN's refinement reads
+    /// the kernel predictor's 7 auxiliary input planes (6..13) as its own
+    /// 12..19; a sample leaves them out of its own (29 planes, not 36) and
+    /// each crop copies them from the input.
+    fn shared(self) -> Option<(usize, usize, usize)> {
+        match self {
+            Model::Wskp(..) => None,
+            Model::Afn(_) => Some((6, 12, 7)),
+        }
+    }
+    /// Planes a sample holds: the crop's, less the shared ones.
+    fn sample_planes(self) -> usize {
+        let (cin, own) = self.planes();
+        cin + own - self.shared().map_or(0, |(_, _, k)| k)
+    }
+    /// Fills a crop's input `x` and the model's own planes `own` from
+    /// `sample` at `at` (side `s`).
+    fn fill_crop(self, sample: &Sample, at: CropAt, s: usize, x: &mut [f32], own: &mut [f32]) {
+        let (cin, nown) = self.planes();
+        crop(sample, at, s, 0, cin, x);
+        match self.shared() {
+            None => crop(sample, at, s, cin, cin + nown, own),
+            Some((xi, oi, k)) => {
+                let ss = s * s;
+                crop(sample, at, s, cin, cin + oi, &mut own[..oi * ss]);
+                own[oi * ss..(oi + k) * ss].copy_from_slice(&x[xi * ss..(xi + k) * ss]);
+                crop(sample, at, s, cin + oi, cin + nown - k, &mut own[(oi + k) * ss..nown * ss]);
+            }
         }
     }
     /// A sequence's samples, of the frames `keep` says (every frame
@@ -464,7 +496,11 @@ impl Model {
                         exposed(e, &mut [c1, ct, rf, ex], expo);
                     }
                 }
-                let data = data.iter().map(|&v| half::f16::from_f32(v)).collect();
+                // The shared planes left out (see [`Model::shared`]).
+                let skip = self.shared().map_or(0..0, |(_, oi, k)| (cin + oi) * n..(cin + oi + k) * n);
+                let data = data[..skip.start].iter().chain(&data[skip.end..]);
+                let data: Vec<half::f16> = data.map(|&v| half::f16::from_f32(v)).collect();
+                debug_assert_eq!(data.len(), self.sample_planes() * n);
                 out.push(Sample { w: f.width, h: f.height, data });
             }
         }
@@ -761,7 +797,6 @@ pub fn run(a: &TrainArgs) -> Result<()> {
         let make = |f: &Frame| model.denoiser(f, &tr.nets, &tr.params);
         validate(&val, &make, a.threads, a.isa)
     };
-    let (cin, own) = model.planes();
     loop {
         let done_steps = a.steps.is_some_and(|n| step >= n);
         let done_time = deadline.is_some_and(|d| start.elapsed() >= d);
@@ -774,8 +809,8 @@ pub fn run(a: &TrainArgs) -> Result<()> {
             let ws = &mut wss[0];
             let at = picks[i];
             let sm = &samples[at.frame];
-            crop(sm, at, s, 0, cin, ws.input_mut());
-            crop(sm, at, s, cin, cin + own, &mut ws.aux[0]);
+            let (x, own) = ws.input_and_aux_mut(0);
+            model.fill_crop(sm, at, s, x, own);
             Ok(())
         };
         let head = |_: usize, nets: &Nets<'_>, wss: &mut [Workspace]| match model {
