@@ -488,11 +488,12 @@ impl Model {
                         let (ct, rest) = rest.split_at_mut(3 * n);
                         let (alb, rest) = rest.split_at_mut(3 * n);
                         let (rf, rest) = rest.split_at_mut(3 * n);
-                        let (feats, rest) = rest.split_at_mut(7 * n);
+                        // The refinement's auxiliary planes: left out of
+                        // the sample, each crop copies them from the input.
+                        let (_, rest) = rest.split_at_mut(7 * n);
                         let (expo, ex) = rest.split_at_mut(n);
                         let e = afn::inputs(pool, variant, f, t, x, c1, ct, alb, ex)?;
                         rf.copy_from_slice(r);
-                        feats.copy_from_slice(&x[6 * n..]);
                         exposed(e, &mut [c1, ct, rf, ex], expo);
                     }
                 }
