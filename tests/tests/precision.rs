@@ -37,7 +37,19 @@ fn tol<P: HostPrecision>(terms: usize, mag: f64, frac: i8) -> (f64, f64) {
     }
 }
 
-fn check_unfold<P: HostPrecision>(w: usize, h: usize, k: usize, seed: u64) {
+/// The radiance's scale in the checks: 1, or 2^-16 (a render in units
+/// where the radiance is under 1.2e-4: fixed point's finest image formats;
+/// fixed point only, as f16 holds such values as subnormals whatever the
+/// arithmetic does).
+fn scale(dim: bool) -> f32 {
+    if dim {
+        1.0 / 65536.0
+    } else {
+        1.0
+    }
+}
+
+fn check_unfold<P: HostPrecision>(w: usize, h: usize, k: usize, dim: bool, seed: u64) {
     // Normalised non-negative kernels (the softmax kernels' kind), radiance in [0, 8).
     let mut kern = Img::random(k * k, w, h, 0.0, 1.0, seed);
     let n = w * h;
@@ -47,24 +59,27 @@ fn check_unfold<P: HostPrecision>(w: usize, h: usize, k: usize, seed: u64) {
             kern.data[j * n + p] /= s;
         }
     }
-    let src = Img::random(3, w, h, 0.0, 8.0, seed ^ 1);
+    let s = scale(dim);
+    let src = Img::random(3, w, h, 0.0, 8.0 * s, seed ^ 1);
     let (ks, ss) = (store::<P>(&kern, Kind::Unit), store::<P>(&src, Kind::Image));
+    assert!(!dim || P::NAME != "fixed" || ss.frac > 14, "dim radiance in a format finer than Q1.14: {}", ss.frac);
     let want = oracle::unfold(k, &seen::<P>(&ks), &seen::<P>(&ss), 3, w, h);
     for isa in isas_under_test() {
         let mut o = out::<P>(3, w, h, ss.frac);
         let mut scratch = vec![0.0; unfold::scratch_len::<P>(k, 3, w)];
         unfold::apply::<P>(isa, k, &ks.view(), &ss.view(), &mut o.view_mut(), &mut scratch).unwrap();
-        let (a, r) = tol::<P>(k * k, 8.0, o.frac);
-        assert_close(&format!("{} unfold {isa:?} k={k}", P::NAME), &o.decode::<P>(), &want, a, r);
+        let (a, r) = tol::<P>(k * k, 8.0 * s as f64, o.frac);
+        assert_close(&format!("{} unfold {isa:?} k={k} dim {dim}", P::NAME), &o.decode::<P>(), &want, a, r);
     }
 }
 
-fn check_fused<P: HostPrecision>(w: usize, h: usize, m: usize, seed: u64) {
+fn check_fused<P: HostPrecision>(w: usize, h: usize, m: usize, dim: bool, seed: u64) {
     let sizes: Vec<usize> = (0..m).map(|i| 3 + 2 * i).collect();
     let imp = Img::random(m, w, h, -12.0, 12.0, seed);
     let fus = Img::random(m, w, h, -4.0, 4.0, seed ^ 1);
     let alb = Img::random(3, w, h, 0.0, 1.0, seed ^ 2);
-    let rad = Img::random(3, w, h, 0.0, 16.0, seed ^ 3);
+    let s = scale(dim);
+    let rad = Img::random(3, w, h, 0.0, 16.0 * s, seed ^ 3);
     // Logits in Q7.8 for fixed point (the float precisions ignore the format).
     let logit_store = |img: &Img| {
         let frac = if P::NAME == "fixed" { fixed::LOGIT_FRAC } else { 0 };
@@ -74,6 +89,7 @@ fn check_fused<P: HostPrecision>(w: usize, h: usize, m: usize, seed: u64) {
     };
     let (is, fs) = (logit_store(&imp), logit_store(&fus));
     let (als, rs) = (store::<P>(&alb, Kind::Unit), store::<P>(&rad, Kind::Image));
+    assert!(!dim || P::NAME != "fixed" || rs.frac > 14, "dim radiance in a format finer than Q1.14: {}", rs.frac);
     let want =
         oracle::fused(&sizes, &seen::<P>(&is), Some(&seen::<P>(&fs)), Some(&seen::<P>(&als)), &seen::<P>(&rs), 3, w, h);
     for isa in isas_under_test() {
@@ -88,16 +104,17 @@ fn check_fused<P: HostPrecision>(w: usize, h: usize, m: usize, seed: u64) {
             let mut o = out::<P>(3, w, h, rs.frac);
             let mut scratch = vec![0.0; softmax::fused_scratch_len::<P>(path, &sizes, 3, w)];
             softmax::fused_filter::<P>(isa, path, &inp, &mut o.view_mut(), 0, &mut scratch).unwrap();
-            let (a, r) = tol::<P>(sizes.iter().map(|k| k * k).max().unwrap_or(1), 16.0, o.frac);
+            let (a, r) = tol::<P>(sizes.iter().map(|k| k * k).max().unwrap_or(1), 16.0 * s as f64, o.frac);
             // Fixed point: the weights come from a 1e-5 exp and 1/256-nat logits: looser relative bound.
             let r = if P::NAME == "fixed" { 2e-2 } else { r };
-            assert_close(&format!("{} fused {isa:?} {path:?}", P::NAME), &o.decode::<P>(), &want, a, r);
+            assert_close(&format!("{} fused {isa:?} {path:?} dim {dim}", P::NAME), &o.decode::<P>(), &want, a, r);
         }
     }
 }
 
-fn check_pools<P: HostPrecision>(w: usize, h: usize, seed: u64) {
-    let src = Img::random(2, w, h, -4.0, 4.0, seed);
+fn check_pools<P: HostPrecision>(w: usize, h: usize, dim: bool, seed: u64) {
+    let s = scale(dim);
+    let src = Img::random(2, w, h, -4.0 * s, 4.0 * s, seed);
     let ss = store::<P>(&src, Kind::Image);
     let sv = seen::<P>(&ss);
     let (wc, hc) = (pool::coarse(w), pool::coarse(h));
@@ -106,10 +123,10 @@ fn check_pools<P: HostPrecision>(w: usize, h: usize, seed: u64) {
             let want = oracle::reduce2x2(&sv, 2, w, h, max);
             let mut o = out::<P>(2, wc, hc, ss.frac);
             pool::reduce2x2::<P>(isa, op, &ss.view(), &mut o.view_mut(), 0).unwrap();
-            let (a, r) = tol::<P>(4, 4.0, o.frac);
-            assert_close(&format!("{} {op:?} {isa:?}", P::NAME), &o.decode::<P>(), &want, a, r);
+            let (a, r) = tol::<P>(4, 4.0 * s as f64, o.frac);
+            assert_close(&format!("{} {op:?} {isa:?} dim {dim}", P::NAME), &o.decode::<P>(), &want, a, r);
         }
-        let coarse = Img::random(2, wc, hc, -4.0, 4.0, seed ^ 5);
+        let coarse = Img::random(2, wc, hc, -4.0 * s, 4.0 * s, seed ^ 5);
         let cs = store::<P>(&coarse, Kind::Image);
         let alpha = Img::random(1, w, h, 0.0, 1.0, seed ^ 6);
         let als = store::<P>(&alpha, Kind::Unit);
@@ -117,8 +134,8 @@ fn check_pools<P: HostPrecision>(w: usize, h: usize, seed: u64) {
         // f - a D(f) + a c overshoots the inputs' range: one bit of headroom.
         let mut o = out::<P>(2, w, h, ss.frac - 1);
         pool::composite::<P>(isa, &ss.view(), &cs.view(), &als.view(), &mut o.view_mut(), 0).unwrap();
-        let (a, r) = tol::<P>(6, 8.0, o.frac);
-        assert_close(&format!("{} composite {isa:?}", P::NAME), &o.decode::<P>(), &want, a, r);
+        let (a, r) = tol::<P>(6, 8.0 * s as f64, o.frac);
+        assert_close(&format!("{} composite {isa:?} dim {dim}", P::NAME), &o.decode::<P>(), &want, a, r);
     }
 }
 
@@ -164,24 +181,25 @@ proptest! {
     #![proptest_config(ProptestConfig { cases: mcdenoise_tests::cases(16), ..ProptestConfig::default() })]
 
     #[test]
-    fn reduced_precision_unfold(w in 1usize..40, h in 1usize..20, k in prop_oneof![Just(3usize), Just(7), Just(13)], seed: u64) {
-        check_unfold::<F16>(w, h, k, seed);
-        check_unfold::<F16Arith>(w, h, k, seed);
-        check_unfold::<Fixed>(w, h, k, seed);
+    fn reduced_precision_unfold(w in 1usize..40, h in 1usize..20, k in prop_oneof![Just(3usize), Just(7), Just(13)],
+                                dim: bool, seed: u64) {
+        check_unfold::<F16>(w, h, k, false, seed);
+        check_unfold::<F16Arith>(w, h, k, false, seed);
+        check_unfold::<Fixed>(w, h, k, dim, seed);
     }
 
     #[test]
-    fn reduced_precision_fused(w in 1usize..40, h in 1usize..30, m in 1usize..5, seed: u64) {
-        check_fused::<F16>(w, h, m, seed);
-        check_fused::<F16Arith>(w, h, m, seed);
-        check_fused::<Fixed>(w, h, m, seed);
+    fn reduced_precision_fused(w in 1usize..40, h in 1usize..30, m in 1usize..5, dim: bool, seed: u64) {
+        check_fused::<F16>(w, h, m, false, seed);
+        check_fused::<F16Arith>(w, h, m, false, seed);
+        check_fused::<Fixed>(w, h, m, dim, seed);
     }
 
     #[test]
-    fn reduced_precision_pools(w in 1usize..60, h in 1usize..12, seed: u64) {
-        check_pools::<F16>(w, h, seed);
-        check_pools::<F16Arith>(w, h, seed);
-        check_pools::<Fixed>(w, h, seed);
+    fn reduced_precision_pools(w in 1usize..60, h in 1usize..12, dim: bool, seed: u64) {
+        check_pools::<F16>(w, h, false, seed);
+        check_pools::<F16Arith>(w, h, false, seed);
+        check_pools::<Fixed>(w, h, dim, seed);
     }
 
     #[test]
@@ -244,7 +262,9 @@ fn fixed_simd_is_bit_identical_to_scalar() {
         for w in 1..=70 {
             for h in [1, 5, 17] {
                 let n = w * h;
-                let src = Img::random(3, w, h, -3.0, 3.0, (w * h) as u64);
+                // Odd widths dim (fixed point's finest image format).
+                let s = scale(w % 2 == 1);
+                let src = Img::random(3, w, h, -3.0 * s, 3.0 * s, (w * h) as u64);
                 let ss = store::<Fixed>(&src, Kind::Image);
                 for k in [1, 3, 7, 15] {
                     let kern = Img::random(k * k, w, h, -1.5, 1.5, (w + k) as u64);
@@ -291,7 +311,7 @@ fn fixed_simd_is_bit_identical_to_scalar() {
                 }
                 // The pools, into formats finer, equal and coarser than the input's.
                 let (wc, hc) = (pool::coarse(w), pool::coarse(h));
-                let cs = store::<Fixed>(&Img::random(3, wc, hc, -3.0, 3.0, n as u64 ^ 3), Kind::Image);
+                let cs = store::<Fixed>(&Img::random(3, wc, hc, -3.0 * s, 3.0 * s, n as u64 ^ 3), Kind::Image);
                 let al = store::<Fixed>(&Img::random(3, w, h, 0.0, 1.0, n as u64 ^ 4), Kind::Unit);
                 for of in [ss.frac - 2, ss.frac, ss.frac + 1] {
                     for op in [Reduce::Mean, Reduce::Max] {

@@ -61,7 +61,8 @@ impl PrecisionKind {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Kind {
     /// Radiance-like HDR values: the format keeps the 99.9th percentile of
-    /// `|v|` (times 2 for filter overshoot) representable; the brighter tail
+    /// `|v|` (times 2 for filter overshoot) representable, down to a step of
+    /// 2^-22 for dim renders ([`IMAGE_MAX_FRAC`]); the brighter tail
     /// (fireflies) saturates.
     Image,
     /// Values in [-1, 1] or [0, 1] (normals, albedo, weights): Q1.14.
@@ -199,13 +200,25 @@ impl HostPrecision for F16Arith {
     }
 }
 
+/// The finest format [`frac_for_max`] gives (Q1.14).
+pub const MAX_FRAC: i8 = 14;
+/// The finest format of an image ([`Kind::Image`], [`frac_for_percentile`]):
+/// a step of 2.4e-7, so that a render in units where most radiance
+/// is under 1e-3 keeps its bits (at [`MAX_FRAC`] the sample's median
+/// radiance divided by 4096 was a third of a step). Every format lies in
+/// `MIN_FRAC..=IMAGE_MAX_FRAC`, so any two are at most 30 bits apart.
+pub const IMAGE_MAX_FRAC: i8 = 22;
+/// The coarsest format (Q23.-8: values to 8.4e6).
+pub const MIN_FRAC: i8 = -8;
+
 /// The fixed-point format policy: fractional bits that keep `m` (times 2 of
-/// headroom) below 2^15, between -8 and 14.
+/// headroom) below 2^15, between [`MIN_FRAC`] and [`MAX_FRAC`]; 14 for
+/// nothing to keep (zero, or not finite).
 pub fn frac_for_max(m: f32) -> i8 {
     if m.is_nan() || m <= 0.0 || !m.is_finite() {
         return 14;
     }
-    frac_for_bucket(bucket(m))
+    frac_for_bucket(bucket(m), MAX_FRAC)
 }
 
 /// `ceil(log2 |v|) + 127` from the bits of `|v|`, exactly (no `log2`
@@ -222,18 +235,19 @@ fn bucket(v: f32) -> usize {
     }
 }
 
-/// [`frac_for_max`] of a value in `bucket` (the integer bits needed for
-/// twice it are `ceil(log2 m) + 1`).
-fn frac_for_bucket(k: usize) -> i8 {
+/// The format of a largest value in `bucket` (the integer bits needed for
+/// twice it are `ceil(log2 m) + 1`), at most `finest`.
+fn frac_for_bucket(k: usize, finest: i8) -> i8 {
     match k {
         0 | 256 => 14,
-        _ => (15 - (k as i32 - 127 + 1)).clamp(-8, 14) as i8,
+        _ => (15 - (k as i32 - 127 + 1)).clamp(MIN_FRAC as i32, finest as i32) as i8,
     }
 }
 
-/// `frac_for_max(percentile_abs(src, q))` without sorting: a histogram of the
-/// values' power-of-two buckets (the format depends on nothing finer), and
-/// the bucket holding the value of that rank.
+/// The format of `percentile_abs(src, q)` as [`frac_for_max`] gives it, but
+/// down to [`IMAGE_MAX_FRAC`], without sorting: a histogram of the values'
+/// power-of-two buckets (the format depends on nothing finer), and the
+/// bucket holding the value of that rank.
 pub fn frac_for_percentile(src: &[f32], q: f64) -> i8 {
     if src.is_empty() {
         return frac_for_max(0.0);
@@ -247,7 +261,7 @@ pub fn frac_for_percentile(src: &[f32], q: f64) -> i8 {
     for (k, &n) in hist.iter().enumerate() {
         seen += n;
         if seen > rank {
-            return frac_for_bucket(k);
+            return frac_for_bucket(k, IMAGE_MAX_FRAC);
         }
     }
     14
@@ -584,7 +598,7 @@ mod tests {
                 let want = if m.is_nan() || m <= 0.0 || !m.is_finite() {
                     14
                 } else {
-                    (15 - (2.0 * m).log2().ceil() as i32).clamp(-8, 14) as i8
+                    (15 - (2.0 * m).log2().ceil() as i32).clamp(-8, 22) as i8
                 };
                 assert_eq!(frac_for_percentile(data, q), want, "q {q}, {} values, m {m:e}", data.len());
             }
@@ -609,7 +623,7 @@ mod tests {
     #[test]
     fn fixed_encode_rounds_half_away_and_saturates() {
         let src = probes();
-        for frac in [-8i8, 0, 3, 8, 14] {
+        for frac in [-8i8, 0, 3, 8, 14, 22] {
             let mut got = vec![0i16; src.len()];
             Fixed::encode(&src, &mut got, frac);
             let scale = 2f64.powi(frac as i32);
