@@ -261,17 +261,36 @@ struct Sample {
     data: Vec<half::f16>,
 }
 
+/// The largest exposure-scaled value a sample holds ([`exposed`]), a power
+/// of two well below f16's largest finite value (65504).
+const SAMPLE_MAX: f32 = 16384.0;
+
 /// Scales a sample's radiance planes by the frame's exposure `e` and sets
-/// its exposure plane to 1. Samples are held in f16: a nearly black frame's
+/// its exposure plane to 1 (but see below). Samples are held in f16: a nearly black frame's
 /// exposure (4.5e5 on one generated frame) overflows f16, and its radiance
 /// (1e-6) would be subnormal; exposure-scaled, both are near 0.18. The
 /// heads and losses are linear in the radiance given the exposure, so
 /// this changes no result but the rounding.
+///
+/// A dim frame with a light in view (`train_0616`: median radiance 1.9e-4,
+/// its light 148) would go past f16's range once scaled (148 e = 1.9e5):
+/// the value became `inf`, and every crop of the frame a non-finite loss.
+/// So the scale is at most `SAMPLE_MAX / max |v|` and the exposure plane
+/// holds the rest (`e / scale`, at most 2^15; the heads and losses read
+/// it). Only values past 2^30 in exposure-normalised units (the key is
+/// 0.18) are then clamped.
 fn exposed(e: f32, planes: &mut [&mut [f32]], expo: &mut [f32]) {
-    for p in planes.iter_mut() {
-        p.iter_mut().for_each(|v| *v *= e);
+    let peak = planes.iter().flat_map(|p| p.iter()).fold(0.0f32, |m, v| if v.is_finite() { m.max(v.abs()) } else { m });
+    let mut scale = e;
+    let mut rest = 1.0f32;
+    if peak * e > SAMPLE_MAX {
+        rest = (peak * e / SAMPLE_MAX).min(32768.0);
+        scale = e / rest;
     }
-    expo.fill(1.0);
+    for p in planes.iter_mut() {
+        p.iter_mut().for_each(|v| *v = (*v * scale).clamp(-2.0 * SAMPLE_MAX, 2.0 * SAMPLE_MAX));
+    }
+    expo.fill(rest);
 }
 
 /// Where a crop comes from: frame, corner, and which of the 8 symmetries.
@@ -906,6 +925,38 @@ pub fn load_params(path: &Path, net: &Net, model: &str) -> Result<Vec<f32>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A dim frame with a bright light: its samples stay finite in f16 and
+    /// the exposure plane holds what the scale left out, so that the plane
+    /// times the exposure plane is the radiance times the exposure within
+    /// f16 rounding (an f64 check); a frame within range keeps the plain
+    /// scaling (exposure plane 1, the same bits as `v * e`).
+    #[test]
+    fn exposed_samples_stay_in_f16_range() {
+        let e = 950.0f32;
+        let dim: Vec<f32> =
+            (0..64).map(|i| 1.9e-4 * (1.0 + (i % 7) as f32) + if i == 5 { 148.0 } else { 0.0 }).collect();
+        let mut a = dim.clone();
+        let mut b = dim.iter().map(|v| v * 0.5).collect::<Vec<_>>();
+        let mut expo = vec![0.0f32; 4];
+        exposed(e, &mut [&mut a, &mut b], &mut expo);
+        let rest = expo[0] as f64;
+        assert!(rest > 1.0 && expo.iter().all(|&x| x == expo[0]), "{expo:?}");
+        for (src, got) in [(&dim, &a), (&dim.iter().map(|v| v * 0.5).collect::<Vec<_>>(), &b)] {
+            for (&v, &g) in src.iter().zip(got.iter()) {
+                let h = half::f16::from_f32(g);
+                assert!(h.is_finite(), "{g} overflows f16");
+                let want = v as f64 * e as f64;
+                let back = h.to_f64() * rest;
+                assert!((back - want).abs() <= 1e-3 * want.abs() + 1e-9, "{v}: {back} vs {want}");
+            }
+        }
+        let mut c: Vec<f32> = (0..16).map(|i| 0.001 * i as f32).collect();
+        let want: Vec<f32> = c.iter().map(|v| v * e).collect();
+        exposed(e, &mut [&mut c], &mut expo);
+        assert_eq!(c, want);
+        assert!(expo.iter().all(|&x| x == 1.0));
+    }
 
     /// Each estimate's difference from the reference shrinks by `sqrt(n)`
     /// (checked in f64), so its variance over many pixels by `n`; buffers
