@@ -121,9 +121,11 @@ pub struct Pair<'a> {
 
 impl Pair<'_> {
     /// The colour's noise variance from its value `y` and `B`'s value `b`
-    /// at a pixel (any transform applied to both): one estimate's
-    /// `(A - B)^2 / 2`, the mean's `(M - B)^2 = (A - B)^2 / 4`, each with
-    /// the expectation of the colour's variance.
+    /// at a pixel, linear values: one estimate's `(A - B)^2 / 2`, the mean's
+    /// `(M - B)^2 = (A - B)^2 / 4`, each with the expectation of the
+    /// colour's variance. Through a non-linear map (`log1p`) the mean's
+    /// form no longer holds (a firefly in `B` alone drags `M` with it:
+    /// [`Pair::spread`]).
     #[inline]
     pub fn variance(&self, y: f32, b: f32) -> f32 {
         let d = y - b;
@@ -132,6 +134,31 @@ impl Pair<'_> {
         } else {
             0.5 * d * d
         }
+    }
+
+    /// `A`'s value at a pixel from the colour's `y` and `B`'s `b` (linear):
+    /// `y` itself, or `2 y - b` when the colour is the mean.
+    #[inline]
+    pub fn first(&self, y: f32, b: f32) -> f32 {
+        if self.colour_is_mean {
+            2.0 * y - b
+        } else {
+            y
+        }
+    }
+
+    /// The colour's noise variance through a map `T` applied to each of the
+    /// three values: `ty = T(colour)`, `ta = T(A)` ([`Pair::first`]),
+    /// `tb = T(B)`; the mean of `(ty - ta)^2` and `(ty - tb)^2`. On linear
+    /// values it is [`Pair::variance`] (one estimate: `ty = ta`, half of
+    /// `(A - B)^2`; the mean: `(A - B)^2 / 4` from each). Through `log1p`
+    /// it stays symmetric in the two estimates: where `B` alone holds a
+    /// firefly, `T(M)` lies near `T(B)` and `(T(M) - T(B))^2` alone would
+    /// read the pixel as nearly noise-free.
+    #[inline]
+    pub fn spread(ty: f32, ta: f32, tb: f32) -> f32 {
+        let (da, db) = (ty - ta, ty - tb);
+        0.5 * (da * da + db * db)
     }
 
     /// The best estimate from the colour's value `y` and `B`'s `b` (the
