@@ -1177,6 +1177,13 @@ mod tests {
         assert!(err(&two) < 2.0 * e_in, "the pair: back to the input ({} against the input's {e_in})", err(&two));
     }
 
+    /// Images of `len` values uniform in `1 +- width / 2`, one a call, from
+    /// the generator seeded with `seed`.
+    fn around_one(seed: u32, len: usize, width: f32) -> impl FnMut() -> Vec<f32> {
+        let mut next = crate::methods::test_noise::xorshift32(seed);
+        move || (0..len).map(|_| 1.0 + width * ((next() >> 8) as f32 / (1u32 << 24) as f32 - 0.5)).collect()
+    }
+
     /// The fade under the pair's mean: a pair of estimates whose own noise
     /// level is past [`FADE_TO`] leaves the output alone when the colour is
     /// their mean (whose level, half of it, is below [`FADE_TO`]), and the
@@ -1187,17 +1194,9 @@ mod tests {
         let mut ctx = crate::methods::context(&crate::methods::Settings::default()).unwrap();
         let (w, h) = (32, 24);
         let n = w * h;
-        let mut next = crate::methods::test_noise::xorshift32(777);
-        let mut noisy = || {
-            (0..3 * n)
-                .map(|_| {
-                    let s = next();
-                    // Uniform in 1 +- 0.31: variance 0.032, about 0.008 in
-                    // log1p at 1 (slope 1/2).
-                    1.0 + 0.62 * ((s >> 8) as f32 / (1u32 << 24) as f32 - 0.5)
-                })
-                .collect::<Vec<f32>>()
-        };
+        // Uniform in 1 +- 0.31: variance 0.032, about 0.008 in log1p at 1
+        // (slope 1/2).
+        let mut noisy = around_one(777, 3 * n, 0.62);
         let (a, b) = (noisy(), noisy());
         let m: Vec<f32> = a.iter().zip(&b).map(|(x, y)| 0.5 * (x + y)).collect();
         // The levels in f64: one estimate's and the mean's (median of the
@@ -1228,9 +1227,7 @@ mod tests {
         let mut ctx = crate::methods::context(&crate::methods::Settings::default()).unwrap();
         let (w, h) = (24, 16);
         let n = w * h;
-        let mut next = crate::methods::test_noise::xorshift32(4242);
-        let mut noisy =
-            || (0..3 * n).map(|_| 1.0 + 0.1 * ((next() >> 8) as f32 / (1u32 << 24) as f32 - 0.5)).collect::<Vec<f32>>();
+        let mut noisy = around_one(4242, 3 * n, 0.1);
         let (a0, b0) = (noisy(), noisy());
         let alb = vec![0.5f32; 3 * n];
         let at = 7 * w + 11;

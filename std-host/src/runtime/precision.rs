@@ -360,6 +360,38 @@ pub fn keep_within(c: &mut [f32], ex: &mut [f32], m: f32) -> usize {
     moved
 }
 
+/// Clamps `a` and `b` (the same pixels, two images) to `|v| <= m` and adds
+/// to `ex` the part of the excess both share: at each value, the smaller
+/// of the two excesses where both lie beyond the bound on the same side,
+/// else nothing. Returns how many values of `a` moved.
+pub fn keep_shared_within(a: &mut [f32], b: &mut [f32], ex: &mut [f32], m: f32) -> usize {
+    if !m.is_finite() {
+        return 0;
+    }
+    let mut moved = 0;
+    for ((va, vb), e) in a.iter_mut().zip(b.iter_mut()).zip(ex.iter_mut()) {
+        let (ka, kb) = (va.clamp(-m, m), vb.clamp(-m, m));
+        let (da, db) = (*va - ka, *vb - kb);
+        if da.is_finite() && db.is_finite() {
+            *e += if da > 0.0 && db > 0.0 {
+                da.min(db)
+            } else if da < 0.0 && db < 0.0 {
+                da.max(db)
+            } else {
+                0.0
+            };
+        }
+        if ka != *va && va.is_finite() {
+            *va = ka;
+            moved += 1;
+        }
+        if vb.is_finite() {
+            *vb = kb;
+        }
+    }
+    moved
+}
+
 /// The largest `|v|` (NaN ignored; 0 for none), in eight lanes that vectorise.
 pub fn max_abs(src: &[f32]) -> f32 {
     let mut acc = [0.0f32; 8];
@@ -580,6 +612,58 @@ mod tests {
         let (mut c32, mut ex32) = (src.clone(), vec![0.0f32; src.len()]);
         assert_eq!(keep_saturated::<F32>(&mut c32, &mut ex32, 0), 0);
         assert!(c32.iter().zip(&src).all(|(a, b)| a.to_bits() == b.to_bits()) && ex32.iter().all(|&e| e == 0.0));
+    }
+
+    /// `keep_shared_within` against its definition in f64: both images end
+    /// within the bound (non-finite values of either stay), `ex` gains the
+    /// smaller excess where both lie beyond the bound on the same side and
+    /// nothing elsewhere (a firefly of one image alone is clamped, not
+    /// kept), values within the bound stay bit for bit, and an infinite
+    /// bound moves nothing.
+    #[test]
+    fn only_the_excess_both_images_share_is_kept() {
+        let a = probes();
+        // The second image: the first's values in another order, so that
+        // the probes meet every pairing of inside, beyond and non-finite.
+        let b: Vec<f32> = a.iter().rev().copied().collect();
+        let m = 0.75f32;
+        let (mut ca, mut cb, mut ex) = (a.clone(), b.clone(), vec![0.25f32; a.len()]);
+        let moved = keep_shared_within(&mut ca, &mut cb, &mut ex, m);
+        assert_eq!(moved, a.iter().filter(|v| v.is_finite() && v.abs() > m).count());
+        let (mut both, mut one) = (0, 0);
+        for i in 0..a.len() {
+            let (va, vb) = (a[i] as f64, b[i] as f64);
+            let m64 = m as f64;
+            let clamp = |v: f64| v.clamp(-m64, m64);
+            for (v, c) in [(a[i], ca[i]), (b[i], cb[i])] {
+                if !v.is_finite() {
+                    assert!(c.to_bits() == v.to_bits() || (v.is_nan() && c.is_nan()), "{v} moved to {c}");
+                } else if v.abs() <= m {
+                    assert_eq!(c.to_bits(), v.to_bits(), "{v} inside the bound moved");
+                } else {
+                    assert_eq!(c as f64, clamp(v as f64), "{v}");
+                }
+            }
+            let (da, db) = (va - clamp(va), vb - clamp(vb));
+            let want = if !(da.is_finite() && db.is_finite()) {
+                0.0
+            } else if da > 0.0 && db > 0.0 {
+                both += 1;
+                da.min(db)
+            } else if da < 0.0 && db < 0.0 {
+                both += 1;
+                da.max(db)
+            } else {
+                one += usize::from(da != 0.0 || db != 0.0);
+                0.0
+            };
+            let got = ex[i] as f64 - 0.25;
+            assert!((got - want).abs() <= 1e-6 * (1.0 + want.abs()), "{va} {vb}: {got} against {want}");
+        }
+        assert!(both > 10 && one > 10, "the probes hold both cases ({both}, {one})");
+        let (mut ca, mut cb, mut ex) = (a.clone(), b.clone(), vec![0.0f32; a.len()]);
+        assert_eq!(keep_shared_within(&mut ca, &mut cb, &mut ex, f32::INFINITY), 0);
+        assert!(ca.iter().zip(&a).all(|(x, y)| x.to_bits() == y.to_bits()) && ex.iter().all(|&e| e == 0.0));
     }
 
     #[test]
