@@ -327,6 +327,48 @@ fn filter_and_gradient_stay_finite_at_the_range_limit() {
     }
 }
 
+/// The variance at the host's sanitised f32 range (±1e20): the squared
+/// differences pass f32's range, and every instruction set saturates them
+/// at `f32::MAX` where the f64 oracle is beyond it and agrees with the
+/// oracle elsewhere (a case the `ops` fuzz target found: a non-finite
+/// output from finite input).
+#[test]
+fn variance_saturates_at_the_range_limit() {
+    let (w, h) = (16, 9);
+    let mut x = Img::random(3, w, h, 0.0, 1.0, 11);
+    for (i, v) in x.data.iter_mut().enumerate() {
+        if i % 37 == 0 {
+            *v = 1e20;
+        } else if i % 41 == 0 {
+            *v = -1e20;
+        }
+    }
+    let want = oracle::cross_variance(&x.data.iter().map(|&v| v as f64).collect::<Vec<_>>(), w, h);
+    assert!(want.iter().any(|&v| v > f32::MAX as f64), "the test's premise: some variance past f32");
+    // Pixels whose 3x3 window holds a value of 1e20 in some channel: their
+    // f32 window sums lose the small values to it (f32 keeps 7 digits), so
+    // only the saturation and finiteness are asserted there.
+    let huge = |i: usize| {
+        let (px, py) = (i % w, i / w);
+        (0..3).any(|c| {
+            (py.saturating_sub(1)..(py + 2).min(h))
+                .any(|y| (px.saturating_sub(1)..(px + 2).min(w)).any(|x2| x.data[(c * h + y) * w + x2].abs() >= 1e19))
+        })
+    };
+    assert!((0..w * h).any(|i| !huge(i)), "the test's premise: some windows hold no such value");
+    for isa in isas_under_test() {
+        let got = variance(isa, &x);
+        for (i, (&g, &o)) in got.data.iter().zip(&want).enumerate() {
+            assert!(g.is_finite(), "{isa:?}: pixel {i} non-finite");
+            if o > f32::MAX as f64 {
+                assert_eq!(g, f32::MAX, "{isa:?}: pixel {i}");
+            } else if !huge(i) {
+                assert!((g as f64 - o).abs() <= 1e-4 * o.abs() + 1e-5, "{isa:?}: pixel {i}: {g} against {o}");
+            }
+        }
+    }
+}
+
 /// Bad shapes and short scratch are errors naming the argument.
 #[test]
 fn bad_shapes_are_errors() {

@@ -127,7 +127,8 @@ pub fn sigmoid(r: f32) -> f32 {
 // ---- variance ---------------------------------------------------------------
 
 /// The per-pixel variance estimate of `src` (3 planes) for rows `y0 ..
-/// y0 + out.height()` into `out` (1 plane).
+/// y0 + out.height()` into `out` (1 plane). It saturates at `f32::MAX`:
+/// finite values beyond about 1e19 square past f32's range.
 ///
 /// # Errors
 /// [`Error::IsaUnsupported`] when this CPU lacks `isa`; [`Error::ShapeMismatch`] or
@@ -163,7 +164,7 @@ pub fn variance_rows(isa: Isa, src: &View<'_, f32>, out: &mut ViewMut<'_, f32>, 
                         v += (m - centre) * (m - centre);
                     }
                 }
-                out.row_mut(0, yo)[x] = v;
+                out.row_mut(0, yo)[x] = v.min(f32::MAX);
             }
         }
     });
