@@ -533,29 +533,32 @@ pub(crate) fn log_and_noise(
             let ly = &ly;
             let b = p.b;
             let isa = ctx.isa;
-            // `log(a)` and `log(b)` a run at a time through the core's SIMD
-            // `log1p` (`a` is `A`, recovered from the mean when the colour
-            // is; [`Pair::spread`]).
+            // `log(b)`, and `log(a)` where the colour is the mean (`A`
+            // recovered from it; otherwise `log(a)` is `ly` itself), a run at
+            // a time through the core's SIMD `log1p` ([`Pair::spread`]).
+            let k = if p.colour_is_mean { 2 } else { 1 };
             ctx.pool.planes(vec![&mut raw[..]], RUN, |start, runs| {
                 let r = &mut *runs[0];
                 let len = r.len();
-                let (mut eab, mut lab) = (vec![0.0f32; 2 * len], vec![0.0f32; 2 * len]);
+                let (mut eba, mut lba) = (vec![0.0f32; k * len], vec![0.0f32; k * len]);
                 r.fill(0.0);
                 for c in 0..3 {
-                    let (ea, eb) = eab.split_at_mut(len);
-                    for (j, (da, db)) in ea.iter_mut().zip(eb.iter_mut()).enumerate() {
+                    let (eb, ea) = eba.split_at_mut(len);
+                    for (j, db) in eb.iter_mut().enumerate() {
                         let i = c * n + start + j;
                         let bv = if b[i].is_finite() { b[i] } else { 0.0 };
-                        let yv = if y[i].is_finite() { y[i] } else { 0.0 };
-                        *da = e * p.first(yv, bv);
                         *db = e * bv;
+                        if let Some(da) = ea.get_mut(j) {
+                            let yv = if y[i].is_finite() { y[i] } else { 0.0 };
+                            *da = e * p.first(yv, bv);
+                        }
                     }
-                    let src = View::new(&eab, 1, 2 * len, 1).expect("a run's shape");
-                    let mut dst = ViewMut::new(&mut lab, 1, 2 * len, 1).expect("a run's shape");
+                    let src = View::new(&eba, 1, k * len, 1).expect("a run's shape");
+                    let mut dst = ViewMut::new(&mut lba, 1, k * len, 1).expect("a run's shape");
                     map::<mcdenoise_core::F32>(isa, Map::Log1p, &src, &mut dst).expect("log1p takes every value");
-                    let (la, lb) = lab.split_at(len);
-                    for (((r, &ta), &tb), &ty) in r.iter_mut().zip(la).zip(lb).zip(&ly[c * n + start..]) {
-                        *r += Pair::spread(ty, ta, tb);
+                    let (lb, la) = lba.split_at(len);
+                    for (j, (r, (&tb, &ty))) in r.iter_mut().zip(lb.iter().zip(&ly[c * n + start..])).enumerate() {
+                        *r += Pair::spread(ty, la.get(j).copied().unwrap_or(ty), tb);
                     }
                 }
                 for r in r.iter_mut() {
