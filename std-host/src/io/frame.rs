@@ -263,6 +263,13 @@ impl Frame {
         true
     }
 
+    /// The colour and `B.*` to change in place, beside the albedo, if the
+    /// frame has `B.*` and albedo.
+    pub fn pair_planes_mut(&mut self) -> Option<(&mut [f32], &mut [f32], &[f32])> {
+        let [Some(c), Some(b), Some(a), ..] = &mut self.planes else { return None };
+        Some((&mut c[..], &mut b[..], &a[..]))
+    }
+
     /// The second estimate and the colour's relation to it, if the frame
     /// has `B.*`.
     pub fn pair(&self) -> Option<Pair<'_>> {

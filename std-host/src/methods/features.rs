@@ -788,6 +788,90 @@ pub fn clamp_fireflies(pool: &Pool, c: &mut [f32], radiance: &[f32], albedo: &[f
     });
 }
 
+/// The stage's name in plans ([`clamp_pair_fireflies`]).
+pub const PAIR_CLAMP_STAGE: &str = "pair firefly clamp (a firefly one estimate alone holds where there is no albedo)";
+
+/// Under the pair's mean ([`Frame::average_pair`], `--pair mean`): a
+/// firefly that one estimate alone holds at a pixel without albedo is
+/// clamped in that estimate, and the colour (their mean) with it, in place.
+///
+/// Such a pixel's irradiance above its surroundings' level is kept out of
+/// the learned filters ([`split_excess`]: a light seen directly stays
+/// sharp), and [`clamp_fireflies`] leaves it alone, so a firefly there (a
+/// chrome sphere or a pane of glass in a raw AOV, whose albedo is 0) came
+/// back at half its height and the accumulation carried it into the next
+/// frames. A light seen directly is in both estimates; a firefly in one.
+/// Where the colour's luminance exceeds `t = m + FIREFLY_K sd`, `m` and
+/// `sd` those of its 5x5 neighbours (the pixel left out: the rule of
+/// [`clamp_fireflies`], which clamps the colour to `t` where there is
+/// albedo) and one estimate's luminance does not, the other estimate is
+/// scaled down until the colour's luminance is `t`. A light's outline,
+/// where the two estimates differ by what each sample covered, has bright
+/// neighbours and a high `t`.
+///
+/// Returns how many pixels changed; nothing happens unless the colour is
+/// the pair's mean and the frame has albedo.
+pub fn clamp_pair_fireflies(f: &mut Frame) -> usize {
+    if !f.colour_is_pair_mean {
+        return 0;
+    }
+    let (w, h) = (f.width, f.height);
+    let n = w * h;
+    let Some((c, b, a)) = f.pair_planes_mut() else { return 0 };
+    if n == 0 || c.len() < 3 * n || b.len() < 3 * n || a.len() < 3 * n {
+        return 0;
+    }
+    let lum = |p: &[f32], i: usize| (p[i] + p[n + i] + p[2 * n + i]) / 3.0;
+    // The colour's luminance before any change: each pixel is judged
+    // against its neighbours as they came.
+    let lc: Vec<f32> = (0..n).map(|i| lum(c, i)).collect();
+    let mut changed = 0;
+    let mut window = Vec::with_capacity(24);
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * w + x;
+            let li = lc[i] as f64;
+            if !li.is_finite() || !is_emitter(a, n, i) {
+                continue;
+            }
+            // The neighbours' mean and spread in f64, around their mean
+            // (pixels without albedo are few; a firefly's square in a
+            // window sum of f32 would blur the spread of its neighbours).
+            window.clear();
+            for yy in y.saturating_sub(2)..(y + 3).min(h) {
+                for xx in x.saturating_sub(2)..(x + 3).min(w) {
+                    let l = lc[yy * w + xx] as f64;
+                    if (xx, yy) != (x, y) {
+                        window.push(if l.is_finite() { l } else { 0.0 });
+                    }
+                }
+            }
+            if window.is_empty() {
+                continue;
+            }
+            let cnt = window.len() as f64;
+            let m = window.iter().sum::<f64>() / cnt;
+            let sd = (window.iter().map(|l| (l - m) * (l - m)).sum::<f64>() / cnt).sqrt();
+            let t = m + FIREFLY_K as f64 * sd;
+            let lb = lum(b, i) as f64;
+            let la = 2.0 * li - lb;
+            let (in_b, hi, lo) = if lb > la { (true, lb, la) } else { (false, la, lb) };
+            // (NaN fails these tests too.)
+            if !(li > t && hi > 0.0 && lo <= t) {
+                continue;
+            }
+            let k = ((2.0 * t - lo).max(0.0) / hi) as f32;
+            for j in [i, n + i, 2 * n + i] {
+                let (ea, eb) = (2.0 * c[j] - b[j], b[j]);
+                let (ea, eb) = if in_b { (ea, eb * k) } else { (ea * k, eb) };
+                (b[j], c[j]) = (eb, 0.5 * (ea + eb));
+            }
+            changed += 1;
+        }
+    }
+    changed
+}
+
 /// `out` = the largest of 0 and the values of `src` (NaN ignored) over the
 /// `(2r+1)^2` window around each pixel, clipped at the border: the largest
 /// along rows, then along columns (the same maximum, 2(2r+1) comparisons a
@@ -1034,6 +1118,139 @@ mod tests {
 
     fn pool() -> Pool {
         Pool::new(2).unwrap()
+    }
+
+    /// A frame of the pair (`a`, `b`: 3 planes each) and albedo, its colour
+    /// made the pair's mean.
+    fn pair_frame(w: usize, h: usize, a: &[f32], b: &[f32], albedo: &[f32]) -> Frame {
+        let mut f = Frame::from_color("pair.exr", w, h, a.to_vec()).unwrap();
+        f.set(Buffer::ColorB, b.to_vec()).unwrap();
+        f.set(Buffer::Albedo, albedo.to_vec()).unwrap();
+        assert!(f.average_pair());
+        f
+    }
+
+    /// Two estimates of a dim chrome-like surface (no albedo), each pixel
+    /// about 0.2 with noise, deterministic.
+    fn dim_pair(w: usize, h: usize) -> (Vec<f32>, Vec<f32>) {
+        let mut next = crate::methods::test_noise::xorshift32(0x2545_f491);
+        let mut plane = || (0..3 * w * h).map(|_| 0.1 + (next() % 1000) as f32 / 5000.0).collect::<Vec<f32>>();
+        (plane(), plane())
+    }
+
+    /// The threshold `m + FIREFLY_K sd` of the pair's mean luminance over
+    /// the 5x5 window around `(x, y)` without it, in f64 from the
+    /// estimates themselves.
+    fn pair_threshold(a: &[f32], b: &[f32], w: usize, h: usize, x: usize, y: usize) -> f64 {
+        let n = w * h;
+        let lum = |i: usize| (0..3).map(|k| 0.5 * (a[k * n + i] as f64 + b[k * n + i] as f64)).sum::<f64>() / 3.0;
+        let mut v = Vec::new();
+        for yy in y.saturating_sub(2)..(y + 3).min(h) {
+            for xx in x.saturating_sub(2)..(x + 3).min(w) {
+                if (xx, yy) != (x, y) {
+                    v.push(lum(yy * w + xx));
+                }
+            }
+        }
+        let m = v.iter().sum::<f64>() / v.len() as f64;
+        let var = v.iter().map(|l| (l - m) * (l - m)).sum::<f64>() / v.len() as f64;
+        m + FIREFLY_K as f64 * var.sqrt()
+    }
+
+    /// A firefly in either estimate at a pixel without albedo is scaled in
+    /// that estimate until the colour (their mean) is at the threshold;
+    /// the other estimate and every other pixel stay bit for bit; which
+    /// estimate held it does not matter.
+    #[test]
+    fn a_firefly_one_estimate_holds_without_albedo_is_clamped() {
+        let (w, h) = (12usize, 10usize);
+        let n = w * h;
+        let albedo = vec![0.0f32; 3 * n];
+        for &(x, y) in &[(5usize, 4usize), (0, 0), (11, 9)] {
+            let p = y * w + x;
+            let (a, mut b) = dim_pair(w, h);
+            for (k, v) in [40.0f32, 65.0, 30.0].into_iter().enumerate() {
+                b[k * n + p] = v;
+            }
+            let t = pair_threshold(&a, &b, w, h, x, y);
+            let mut outs = Vec::new();
+            for swap in [false, true] {
+                let (ea, eb) = if swap { (&b, &a) } else { (&a, &b) };
+                let mut f = pair_frame(w, h, ea, eb, &albedo);
+                let before = f.get(Buffer::Color).unwrap().to_vec();
+                assert_eq!(clamp_pair_fireflies(&mut f), 1, "at ({x}, {y})");
+                let (c, eb2) = (f.get(Buffer::Color).unwrap(), f.get(Buffer::ColorB).unwrap());
+                // The firefly's estimate and the other one, from the frame.
+                let ea2: Vec<f32> = (0..3 * n).map(|j| 2.0 * c[j] - eb2[j]).collect();
+                let (fly, other) = if swap { (&ea2[..], eb2) } else { (eb2, &ea2[..]) };
+                let lum = |v: &[f32]| (v[p] as f64 + v[n + p] as f64 + v[2 * n + p] as f64) / 3.0;
+                let (l, lo) = (lum(fly), lum(&a));
+                assert!((0.5 * (l + lo) - t).abs() <= 1e-5 * t, "the mean at {}, threshold {t}", 0.5 * (l + lo));
+                for k in 0..3 {
+                    let want = [40.0f32, 65.0, 30.0][k] as f64 * (2.0 * t - lo) / 45.0;
+                    assert!((fly[k * n + p] as f64 - want).abs() <= 1e-5 * want, "channel {k} keeps its hue");
+                    // (`A` is `2 M - B` in the frame: within a few ulps of the firefly's 65.)
+                    assert!((other[k * n + p] - a[k * n + p]).abs() <= 4e-5, "the other estimate kept");
+                }
+                for j in 0..3 * n {
+                    if j % n != p {
+                        assert_eq!(c[j].to_bits(), before[j].to_bits(), "pixel {} unchanged", j % n);
+                    }
+                }
+                outs.push(c.to_vec());
+            }
+            for (u, v) in outs[0].iter().zip(&outs[1]) {
+                assert!((u - v).abs() <= 4e-5, "A and B alike: {u} and {v}");
+            }
+        }
+    }
+
+    /// What both estimates hold stays: a light without albedo (a 3x3 one
+    /// and a single pixel, the estimates differing by noise), a light's
+    /// outline that one estimate's sample covered and the other's did not,
+    /// and a firefly on a surface with albedo (left to [`clamp_fireflies`]);
+    /// and nothing changes when the colour is not the pair's mean.
+    #[test]
+    fn what_both_estimates_hold_stays() {
+        let (w, h) = (16usize, 12usize);
+        let n = w * h;
+        let (mut a, mut b) = dim_pair(w, h);
+        let mut albedo = vec![0.0f32; 3 * n];
+        for y in 3..6 {
+            for x in 3..6 {
+                for k in 0..3 {
+                    a[k * n + y * w + x] = 50.0;
+                    b[k * n + y * w + x] = 48.0;
+                }
+            }
+        }
+        // The light's outline: row 6 under it, the sample of A in the light.
+        for x in 3..6 {
+            for k in 0..3 {
+                a[k * n + 6 * w + x] = 50.0;
+            }
+        }
+        let single = 9 * w + 12;
+        for k in 0..3 {
+            a[k * n + single] = 30.0;
+            b[k * n + single] = 33.0;
+        }
+        // A firefly in B on a surface with albedo.
+        let lit = 2 * w + 13;
+        for k in 0..3 {
+            albedo[k * n + lit] = 0.5;
+            b[k * n + lit] = 60.0;
+        }
+        let mut f = pair_frame(w, h, &a, &b, &albedo);
+        let before = f.get(Buffer::Color).unwrap().to_vec();
+        assert_eq!(clamp_pair_fireflies(&mut f), 0);
+        assert_eq!(f.get(Buffer::Color).unwrap(), &before[..]);
+        // One estimate: nothing to compare with.
+        let mut g = Frame::from_color("one.exr", w, h, b.clone()).unwrap();
+        g.set(Buffer::ColorB, a.clone()).unwrap();
+        g.set(Buffer::Albedo, vec![0.0; 3 * n]).unwrap();
+        assert_eq!(clamp_pair_fireflies(&mut g), 0);
+        assert_eq!(g.get(Buffer::Color).unwrap(), &b[..]);
     }
 
     /// The separable window maximum against the window's own maximum (of 0

@@ -315,12 +315,17 @@ impl PairUse {
 /// Readies a frame for `kind` under `pair`, in place (before the denoiser
 /// sees it; the CLI and the Python package both do): under
 /// [`PairUse::Mean`] the colour becomes the pair's mean for the methods
-/// that filter one image, under [`PairUse::First`] `B.*` is dropped.
+/// that filter one image (for WSKP and AFN without a firefly one estimate
+/// alone holds where there is no albedo: [`features::clamp_pair_fireflies`]),
+/// under [`PairUse::First`] `B.*` is dropped.
 pub fn apply_pair(kind: MethodKind, pair: PairUse, frame: &mut Frame) {
     match pair {
         PairUse::Mean => {
             if matches!(kind, MethodKind::None | MethodKind::Ta | MethodKind::Wskp | MethodKind::Afn) {
                 frame.average_pair();
+            }
+            if matches!(kind, MethodKind::Wskp | MethodKind::Afn) {
+                features::clamp_pair_fireflies(frame);
             }
         }
         PairUse::First => frame.remove(crate::io::frame::Buffer::ColorB),

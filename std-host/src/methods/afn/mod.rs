@@ -606,6 +606,9 @@ impl<P: HostPrecision> Afn<P> {
             .with_reject(crate::methods::basic::LEARNED_TA_REJECT)?
             .with_reject_scales(crate::methods::basic::LEARNED_TA_REJECT_SCALES)?;
         let mut plan = ta.plan().clone();
+        if first.colour_is_pair_mean {
+            plan.built.insert(0, features::PAIR_CLAMP_STAGE);
+        }
         match variant {
             Variant::Fusion => plan.built.extend([
                 "kernel predictor (7x7 kernels at two scales)",

@@ -472,6 +472,9 @@ impl<P: HostPrecision> Wskp<P> {
             .with_reject(crate::methods::basic::LEARNED_TA_REJECT)?
             .with_reject_scales(crate::methods::basic::LEARNED_TA_REJECT_SCALES)?;
         let mut plan = ta.plan().clone();
+        if first.colour_is_pair_mean {
+            plan.built.insert(0, features::PAIR_CLAMP_STAGE);
+        }
         plan.built.push(if layers == 6 { "ImportanceNet (6 layers)" } else { "ImportanceNet (3 layers)" });
         plan.built.push(match sizes {
             Sizes::ALL => "fused importance filter (sizes 3..13)",
