@@ -674,7 +674,13 @@ impl<P: HostPrecision> Denoiser for TemporalAccumulation<P> {
     fn denoise(&mut self, f: &Frame, ctx: &mut Ctx, t: &mut Timings) -> Result<Vec<f32>> {
         let (color, _) = self.step(f, ctx, t)?;
         let color = color.clone();
-        Ok(t.time("decode", || color.decode::<P>()))
+        Ok(t.time("decode", || {
+            let mut out = color.decode::<P>();
+            if let Some(x) = f.get(Buffer::Color) {
+                crate::runtime::precision::restore_saturated(&mut out, x, P::store_max(color.frac));
+            }
+            out
+        }))
     }
 }
 
@@ -867,6 +873,48 @@ mod tests {
         }
         run::<F32>(1e-6);
         run::<mcdenoise_core::Fixed>(2e-3);
+    }
+
+    /// A light smaller than the 0.1 % the accumulation's fixed-point format
+    /// lets saturate keeps its value and its hue in `ta`'s output, on the
+    /// first frame and on a static second one, as in f32; the rest of the
+    /// frame is within the format's step of f32.
+    #[test]
+    fn a_small_light_keeps_its_colour_in_fixed_point() {
+        let (w, h) = (48usize, 48usize);
+        let n = w * h;
+        let mut c: Vec<f32> = (0..3 * n).map(|i| 0.05 + 0.001 * ((i * 7919) % 97) as f32).collect();
+        // Two pixels of a bluish light: 0.09 % of the frame.
+        let light = [20 * w + 30, 20 * w + 31];
+        for &p in &light {
+            for (k, v) in [2.3f32, 2.9, 3.2].into_iter().enumerate() {
+                c[k * n + p] = v;
+            }
+        }
+        let mut f = Frame::from_color("light.exr", w, h, c.clone()).unwrap();
+        f.set(Buffer::Motion, vec![0.0; 2 * n]).unwrap();
+        let m = <mcdenoise_core::Fixed as HostPrecision>::store_max(
+            <mcdenoise_core::Fixed as HostPrecision>::choose_frac(&c, Kind::Image),
+        );
+        assert!(m < 2.3, "the light lies beyond the format ({m})");
+        let run = |fixed: bool| -> Vec<Vec<f32>> {
+            let mut ctx = crate::methods::context(&crate::methods::Settings::default()).unwrap();
+            let mut t = Timings::default();
+            if fixed {
+                let mut ta = TemporalAccumulation::<mcdenoise_core::Fixed>::new(&f, false).unwrap();
+                (0..2).map(|_| ta.denoise(&f, &mut ctx, &mut t).unwrap()).collect()
+            } else {
+                let mut ta = TemporalAccumulation::<F32>::new(&f, false).unwrap();
+                (0..2).map(|_| ta.denoise(&f, &mut ctx, &mut t).unwrap()).collect()
+            }
+        };
+        let (want, got) = (run(false), run(true));
+        for (k, (a, b)) in want.iter().zip(&got).enumerate() {
+            for j in 0..3 * n {
+                let tol = if light.contains(&(j % n)) { 1e-6 * a[j].abs() } else { 2e-3 };
+                assert!((a[j] - b[j]).abs() <= tol, "frame {k}, value {j}: f32 {} fixed {}", a[j], b[j]);
+            }
+        }
     }
 
     /// The plan names the rejection's scales, once: built while the

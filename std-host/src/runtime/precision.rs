@@ -343,6 +343,34 @@ pub fn keep_saturated<P: HostPrecision>(c: &mut [f32], ex: &mut [f32], frac: i8)
     keep_within(c, ex, P::store_max(frac))
 }
 
+/// Where the accumulated colour `ta` (decoded) sits at its format's bound
+/// `m` ([`HostPrecision::store_max`] of its `frac`) and the frame's own
+/// value `x` at the same index lies beyond it on the same side, takes `x`.
+/// The accumulation stores its colour in a format that keeps twice the
+/// frame's 99.9th percentile ([`Kind::Image`]); a light smaller than that
+/// share of the frame (seven pixels of sky at a corner, 2.3-3.2 against a
+/// bound of 2) lost its top and its hue there, before any filter could put
+/// it back with the excess ([`keep_saturated`]). A value at the bound is
+/// the format's saturation (the blend of a saturated history with anything
+/// below the bound is below it), and the frame's own value is then what f32
+/// would have accumulated where the history holds the frame alone (a first
+/// frame, a rejected history) and the best the frame knows elsewhere.
+/// Returns how many values changed; nothing changes at an unbounded `m`
+/// (f32), and values that are not finite are not taken.
+pub fn restore_saturated(ta: &mut [f32], x: &[f32], m: f32) -> usize {
+    if !m.is_finite() {
+        return 0;
+    }
+    let mut changed = 0;
+    for (v, &x) in ta.iter_mut().zip(x) {
+        if x.is_finite() && ((*v >= m && x > m) || (*v <= -m && x < -m)) {
+            *v = x;
+            changed += 1;
+        }
+    }
+    changed
+}
+
 /// [`keep_saturated`] at the bound `m` (`|v| <= m` stays).
 pub fn keep_within(c: &mut [f32], ex: &mut [f32], m: f32) -> usize {
     if !m.is_finite() {
@@ -526,6 +554,23 @@ impl<T: bytemuck::Pod + Default> Planes<T> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `restore_saturated` takes the frame's value exactly where the
+    /// accumulated value sits at the bound and the frame's lies beyond it
+    /// on the same side; nothing at an unbounded format.
+    #[test]
+    fn restore_saturated_takes_the_frame_only_at_the_bound() {
+        let m = 2.0f32;
+        let ta = [2.0f32, 2.0, 2.0, 1.9, -2.0, -2.0, 2.0, 2.0, 0.5];
+        let x = [3.0f32, 1.5, -3.0, 3.0, -4.0, 4.0, f32::INFINITY, f32::NAN, 0.7];
+        let want = [3.0f32, 2.0, 2.0, 1.9, -4.0, -2.0, 2.0, 2.0, 0.5];
+        let mut got = ta;
+        assert_eq!(restore_saturated(&mut got, &x, m), 2);
+        assert_eq!(got, want);
+        let mut same = ta;
+        assert_eq!(restore_saturated(&mut same, &x, f32::INFINITY), 0);
+        assert_eq!(same, ta);
+    }
 
     /// Values around every rounding boundary, the saturation limits, signed
     /// zeros, infinities and NaN, plus a sweep.

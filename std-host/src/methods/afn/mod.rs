@@ -696,7 +696,13 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
         let n = w * h;
         let isa = ctx.isa;
         let (color, counts) = self.ta.step(f, ctx, t)?;
-        let ta = t.time("decode", || color.decode::<P>());
+        let ta = t.time("decode", || {
+            let mut ta = color.decode::<P>();
+            if let Some(x) = f.get(Buffer::Color) {
+                crate::runtime::precision::restore_saturated(&mut ta, x, P::store_max(color.frac));
+            }
+            ta
+        });
         let counts = if self.wide { t.time("decode", || counts.decode::<P>()) } else { Vec::new() };
         let bufs = self.bufs.get_or_insert_with(Vec::new);
         if bufs.first().is_none_or(|x| x.len() != CIN * n) {

@@ -552,7 +552,10 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
             Some(v) => v,
             None => {
                 t.time("decode", || {
-                    crate::runtime::precision::decode_par::<P>(&ctx.pool, &color.data, &mut bufs.ta, color.frac)
+                    crate::runtime::precision::decode_par::<P>(&ctx.pool, &color.data, &mut bufs.ta, color.frac);
+                    if let Some(x) = f.get(Buffer::Color) {
+                        crate::runtime::precision::restore_saturated(&mut bufs.ta, x, P::store_max(color.frac));
+                    }
                 });
                 &bufs.ta
             }
