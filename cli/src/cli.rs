@@ -715,7 +715,8 @@ struct PrecisionCli {
     #[arg(long, value_name = "FILE", default_value = "mcdenoise-out/precision.svg")]
     svg: PathBuf,
     /// Per method instead of per operator: run these methods (comma-separated) on --sequence in f32,
-    /// f16 and fixed point, and report each one's ms/frame against PSNR with its Pareto front
+    /// f16 and fixed point, and report each one's ms/frame against PSNR with its Pareto front (the
+    /// outputs in mcdenoise-out/precision/METHOD-PRECISION/, an earlier run's frames there removed)
     #[arg(long, value_name = "M", value_delimiter = ',', requires = "sequence",
           conflicts_with_all = ["frame", "only"],
           value_parser = clap::builder::PossibleValuesParser::new(crate::commands::REPORT_METHODS))]

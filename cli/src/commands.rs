@@ -577,6 +577,9 @@ pub fn precision_methods(
         for precision in [PrecisionKind::F32, PrecisionKind::F16, PrecisionKind::Fixed] {
             let settings = Settings { layers, precision, ..base.clone() };
             let outdir = out_root.join(format!("{name}-{}", precision.name()));
+            // The folder holds this run's frames only: an earlier run's
+            // (a longer sequence's) would be scored with them.
+            clear_frames(&outdir)?;
             let mut scores = Vec::new();
             let mut err = None;
             let opts = SequenceOptions { quiet: true, ..SequenceOptions::default() };
@@ -646,5 +649,18 @@ pub fn precision_methods(
     std::fs::write(csv, text).map_err(|e| HostError::write(csv, e))?;
     println!("wall: reading, denoising and writing, per frame; vs f32: the worst frame's PSNR against f32's; *: on the method's Pareto front of wall time against PSNR");
     println!("outputs: {}/<method>-<precision>/; table: {}", out_root.display(), csv.display());
+    Ok(())
+}
+
+/// Removes the EXR files of `dir` (the precision report's own output
+/// folder, before a run writes it again); a missing folder is fine.
+fn clear_frames(dir: &Path) -> Result<()> {
+    let Ok(entries) = std::fs::read_dir(dir) else { return Ok(()) };
+    for e in entries.flatten() {
+        let p = e.path();
+        if p.is_file() && p.extension().is_some_and(|x| x.eq_ignore_ascii_case("exr")) {
+            std::fs::remove_file(&p).map_err(|err| HostError::write(&p, err))?;
+        }
+    }
     Ok(())
 }

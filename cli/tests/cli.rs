@@ -607,11 +607,17 @@ fn parse_is_a_function_of_the_arguments() {
 /// `precision --methods` on the bundled sample: a row per method and
 /// precision; each row's PSNR is what `mcdenoise score` gives the outputs
 /// it wrote; a reduced precision's worst frame loses at least its mean
-/// loss against f32; each method's fastest row is on its Pareto front.
+/// loss against f32; each method's fastest row is on its Pareto front. A
+/// frame an earlier run left in an output folder (a longer sequence's) is
+/// gone, so the folder scores as the report says.
 #[test]
 fn precision_report_per_method() {
     let t = tempfile::tempdir().unwrap();
     let sample = Path::new(env!("CARGO_MANIFEST_DIR")).join("../samples");
+    let stale = t.path().join("mcdenoise-out/precision/none-f32");
+    std::fs::create_dir_all(&stale).unwrap();
+    std::fs::copy(sample.join("frame_0000.exr"), stale.join("frame_9999.exr")).unwrap();
+    std::fs::write(stale.join("notes.txt"), "kept").unwrap();
     let out = bin()
         .current_dir(t.path())
         .args(["precision", "--methods", "none,atrous", "--threads", "2", "--sequence"])
@@ -619,6 +625,8 @@ fn precision_report_per_method() {
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(!stale.join("frame_9999.exr").exists(), "the earlier run's frame is removed");
+    assert_eq!(std::fs::read_to_string(stale.join("notes.txt")).unwrap(), "kept", "only frames are removed");
     let csv = std::fs::read_to_string(t.path().join("mcdenoise-out/precision-methods.csv")).unwrap();
     let rows: Vec<Vec<String>> = csv.lines().skip(1).map(|l| l.split(',').map(str::to_string).collect()).collect();
     let want = ["none f32", "none f16", "none fixed", "atrous f32", "atrous f16", "atrous fixed"];
