@@ -596,6 +596,20 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
         history
     }
 
+    /// The accumulated colour of a [`step`](Self::step) decoded to f32 into
+    /// `out` (resized to fit) over `pool`'s threads, with the frame's own
+    /// value taken where the colour's format saturated it
+    /// ([`restore_saturated`](crate::runtime::precision::restore_saturated)):
+    /// how `ta`, WSKP and AFN all read the accumulation. Nothing is restored
+    /// in f32 or where the frame has no colour.
+    pub fn decode_color(pool: &crate::runtime::par::Pool, color: &Planes<P::Store>, f: &Frame, out: &mut Vec<f32>) {
+        out.resize(color.data.len(), 0.0);
+        crate::runtime::precision::decode_par::<P>(pool, &color.data, out, color.frac);
+        if let Some(x) = f.get(Buffer::Color) {
+            crate::runtime::precision::restore_saturated(out, x, P::store_max(color.frac));
+        }
+    }
+
     /// Accumulates one frame; returns the accumulated colour and the history counts.
     pub fn step(&mut self, f: &Frame, ctx: &mut Ctx, t: &mut Timings) -> Result<StepOut<'_, P>> {
         let (w, h) = (f.width, f.height);
@@ -673,14 +687,9 @@ impl<P: HostPrecision> Denoiser for TemporalAccumulation<P> {
     }
     fn denoise(&mut self, f: &Frame, ctx: &mut Ctx, t: &mut Timings) -> Result<Vec<f32>> {
         let (color, _) = self.step(f, ctx, t)?;
-        let color = color.clone();
-        Ok(t.time("decode", || {
-            let mut out = color.decode::<P>();
-            if let Some(x) = f.get(Buffer::Color) {
-                crate::runtime::precision::restore_saturated(&mut out, x, P::store_max(color.frac));
-            }
-            out
-        }))
+        let mut out = Vec::new();
+        t.time("decode", || Self::decode_color(&ctx.pool, color, f, &mut out));
+        Ok(out)
     }
 }
 

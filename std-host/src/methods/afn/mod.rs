@@ -696,12 +696,9 @@ impl<P: HostPrecision> Denoiser for Afn<P> {
         let n = w * h;
         let isa = ctx.isa;
         let (color, counts) = self.ta.step(f, ctx, t)?;
-        let ta = t.time("decode", || {
-            let mut ta = color.decode::<P>();
-            if let Some(x) = f.get(Buffer::Color) {
-                crate::runtime::precision::restore_saturated(&mut ta, x, P::store_max(color.frac));
-            }
-            ta
+        let mut ta = Vec::new();
+        t.time("decode", || {
+            crate::methods::basic::TemporalAccumulation::<P>::decode_color(&ctx.pool, color, f, &mut ta)
         });
         let counts = if self.wide { t.time("decode", || counts.decode::<P>()) } else { Vec::new() };
         let bufs = self.bufs.get_or_insert_with(Vec::new);

@@ -552,10 +552,7 @@ impl<P: HostPrecision> Denoiser for Wskp<P> {
             Some(v) => v,
             None => {
                 t.time("decode", || {
-                    crate::runtime::precision::decode_par::<P>(&ctx.pool, &color.data, &mut bufs.ta, color.frac);
-                    if let Some(x) = f.get(Buffer::Color) {
-                        crate::runtime::precision::restore_saturated(&mut bufs.ta, x, P::store_max(color.frac));
-                    }
+                    crate::methods::basic::TemporalAccumulation::<P>::decode_color(&ctx.pool, color, f, &mut bufs.ta)
                 });
                 &bufs.ta
             }
