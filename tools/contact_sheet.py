@@ -3,7 +3,12 @@
 frames given, tone-mapped alike (tools/preview.py's curve), in rows of
 COLS tiles, optionally each tile scaled up by SCALE (nearest neighbour).
 
-    tools/.venv/bin/python tools/contact_sheet.py out.png a.exr b.exr ... [--cols 4] [--scale 2]
+    tools/.venv/bin/python tools/contact_sheet.py out.png a.exr b.exr ... [--cols 4] [--scale 2] \
+        [--crop Y0,Y1,X0,X1] [--contrast K]
+
+--crop keeps rows Y0..Y1 and columns X0..X1 of every frame; --contrast K
+spreads each channel's tone-mapped values K times about the first tile's
+mean (to show low-frequency error on a flat wall).
 
 tools/eval_learned.py --sheets writes one per sequence (its last frame:
 input, TA, the learned methods, OIDN high, reference; the order is in the
@@ -27,10 +32,20 @@ def main():
     p.add_argument('frames', nargs='+')
     p.add_argument('--cols', type=int, default=4)
     p.add_argument('--scale', type=int, default=1)
+    p.add_argument('--crop', default=None, help='Y0,Y1,X0,X1')
+    p.add_argument('--contrast', type=float, default=1.0)
     a = p.parse_args()
     tiles = []
+    centre = None
     for f in a.frames:
         t = tonemap(stack(read_exr(f), ['R', 'G', 'B']))
+        if a.crop:
+            y0, y1, x0, x1 = (int(v) for v in a.crop.split(','))
+            t = t[y0:y1, x0:x1]
+        if a.contrast != 1.0:
+            if centre is None:
+                centre = t.reshape(-1, 3).mean(0)
+            t = np.clip((t - centre) * a.contrast + 0.5, 0, 1)
         tiles.append(np.repeat(np.repeat(t, a.scale, 0), a.scale, 1))
     h = max(t.shape[0] for t in tiles)
     w = max(t.shape[1] for t in tiles)

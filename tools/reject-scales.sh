@@ -15,7 +15,9 @@
 # (OUT_DIR/SCENE/{1,2,3}/METHOD) and the table (OUT_DIR/scores.txt);
 # outputs that exist are kept. SCALES="1 2 3", METHODS="wskp6 afn wskp3"
 # and PAIR=first (or mean: the pair's mean, where the frames carry B.*;
-# use another OUT_DIR for it) choose. Needs target/release/mcdenoise (or
+# use another OUT_DIR for it) choose. OPTION=--ta-relight VALUES="off on"
+# compares another option's values instead (the changes are from the first
+# value; docs/quality.md, "The history relit where a light moved"). Needs target/release/mcdenoise (or
 # $MCDENOISE) and bash 4 or later. About 2 s a scene and method on a
 # 2-core machine (8 frames of 192x144). Sequences are named by their
 # folder's name, which must differ.
@@ -26,8 +28,14 @@ M=${MCDENOISE:-$HERE/../target/release/mcdenoise}
 [ -x "$M" ] || { echo "reject-scales.sh: no $M (cargo build --release -p mcdenoise-cli)" >&2; exit 1; }
 gen=$1; out=$2; shift 2
 SCALES=${SCALES:-1 2 3}; METHODS=${METHODS:-wskp6 afn wskp3}; PAIR=${PAIR:-first}
+OPTION=${OPTION:---ta-reject-scales}
+if [ "$OPTION" = --ta-reject-scales ]; then
+    case " $SCALES " in *" 1 "*) ;; *) echo "reject-scales.sh: SCALES must include 1 (the changes are from it)" >&2; exit 2 ;; esac
+    VALUES="1 ${SCALES//1/}"
+fi
+VALUES=${VALUES:?reject-scales.sh: VALUES names the values of $OPTION to compare}
+base=${VALUES%% *}
 mkdir -p "$out"
-case " $SCALES " in *" 1 "*) ;; *) echo "reject-scales.sh: SCALES must include 1 (the changes are from it)" >&2; exit 2 ;; esac
 seqs=()
 if [ "$gen" != - ]; then
     # (An assignment, so that a failing scan stops the script.)
@@ -53,7 +61,7 @@ echo "${#seqs[@]} sequences" >&2
 : > "$out/scores.txt"
 for seq in "${seqs[@]}"; do
     s=$(basename "$seq")
-    for k in $SCALES; do
+    for k in $VALUES; do
         line="$s $k"
         for m in $METHODS; do
             case $m in
@@ -64,7 +72,7 @@ for seq in "${seqs[@]}"; do
             esac
             o="$out/$s/$k/$m"
             if [ ! -d "$o" ]; then
-                "$M" denoise "${a[@]}" --pair "$PAIR" --ta-reject-scales "$k" "$seq" -o "$o.tmp" >/dev/null 2>"$out/err" ||
+                "$M" denoise "${a[@]}" --pair "$PAIR" "$OPTION" "$k" "$seq" -o "$o.tmp" >/dev/null 2>"$out/err" ||
                     { cat "$out/err" >&2; exit 1; }
                 mv "$o.tmp" "$o"
             fi
@@ -73,21 +81,22 @@ for seq in "${seqs[@]}"; do
         echo "$line" | tee -a "$out/scores.txt"
     done
 done
-python3 - "$out/scores.txt" <<'EOF'
+python3 - "$out/scores.txt" "$base" "$OPTION" <<'EOF'
 import collections, math, sys
 rows = collections.defaultdict(dict)
 for line in open(sys.argv[1]):
     f = line.split()
     rows[f[0]][f[1]] = {f[i]: float(f[i + 1]) for i in range(2, len(f), 2)}
-scales = sorted({k for r in rows.values() for k in r})
-methods = [m for m in next(iter(rows.values()))[scales[0]]]
-print('change from one scale, PSNR dB, mean over %d sequences (worst, best):' % len(rows))
+base, option = sys.argv[2], sys.argv[3]
+scales = [base] + sorted({k for r in rows.values() for k in r} - {base})
+methods = [m for m in next(iter(rows.values()))[base]]
+print('change from %s %s, PSNR dB, mean over %d sequences (worst, best):' % (option, base, len(rows)))
 for k in scales[1:]:
     parts = []
     for m in methods:
-        d = sorted((r[k][m] - r['1'][m], s) for s, r in rows.items()
-                   if k in r and '1' in r and math.isfinite(r[k][m]) and math.isfinite(r['1'][m]))
+        d = sorted((r[k][m] - r[base][m], s) for s, r in rows.items()
+                   if k in r and base in r and math.isfinite(r[k][m]) and math.isfinite(r[base][m]))
         if d:
             parts.append('%s %+.3f (%+.3f %s, %+.3f %s)' % (m, sum(x for x, _ in d) / len(d), d[0][0], d[0][1], d[-1][0], d[-1][1]))
-    print('  %s scales: %s' % (k, '; '.join(parts)))
+    print('  %s %s: %s' % (option, k, '; '.join(parts)))
 EOF

@@ -152,6 +152,14 @@ fn pair_use(s: &str) -> std::result::Result<mcdenoise::methods::PairUse, String>
     mcdenoise::methods::PairUse::from_name(s.trim()).ok_or_else(|| format!("expected mean or first, got '{s}'"))
 }
 
+fn on_off(s: &str) -> std::result::Result<bool, String> {
+    match s.trim() {
+        "on" => Ok(true),
+        "off" => Ok(false),
+        _ => Err(format!("expected on or off, got '{s}'")),
+    }
+}
+
 fn wskp_sizes(s: &str) -> std::result::Result<mcdenoise::methods::wskp::Sizes, String> {
     mcdenoise::methods::wskp::Sizes::parse(s)
 }
@@ -358,6 +366,13 @@ struct SettingsCli {
     /// lag too small for a narrower one, and lets more history go [default: 1; 3 for WSKP and AFN]
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u8).range(1..=3))]
     ta_reject_scales: Option<u8>,
+    /// Temporal accumulation (ta, WSKP, AFN): where the frame's and the history's 65x65 mean
+    /// luminance differ beyond the rejection's threshold, scale the history by their ratio before
+    /// the rejection's tests (where it brings their 17x17 means closer), so that a wall a moving
+    /// light brightens or dims keeps its history instead of restarting from one frame (off: let
+    /// the rejection alone decide)
+    #[arg(long, value_name = "ON|OFF", default_value = "on", value_parser = on_off, action = clap::ArgAction::Set)]
+    ta_relight: bool,
     /// A frame with a second estimate B.* of its pixels: 'mean' uses every sample (none, ta, WSKP
     /// and AFN filter (A + B) / 2; atrous, sure-atrous and cross read both as always); 'first'
     /// reads A alone, as if B.* were not there (to compare with a denoiser given one estimate;
@@ -423,6 +438,7 @@ impl SettingsCli {
         s.ta_clamp = self.ta_clamp;
         s.ta_reject = self.ta_reject;
         s.ta_reject_scales = self.ta_reject_scales.map(usize::from);
+        s.ta_relight = self.ta_relight;
         s.layers = self.layers.unwrap_or_else(|| layers_of(self.weights.as_deref()));
         s.weights = self.weights;
         s.seed = self.seed;

@@ -176,6 +176,7 @@ fn settings_of(
                     }
                     s.ta_reject_scales = Some(k);
                 }
+                "ta_relight" => s.ta_relight = v.extract()?,
                 "pair" => {
                     let name: String = v.extract()?;
                     s.pair = methods::PairUse::from_name(&name).ok_or_else(|| {
@@ -196,7 +197,7 @@ fn settings_of(
                 other => {
                     return Err(PyTypeError::new_err(format!(
                         "unexpected keyword argument '{other}' (options: layers, weights, refine, fallback, \
-                         phi_color, firefly_clamp, ta_clamp, ta_reject, ta_reject_scales, pair, seed, cross_lr, cross_spatial_only, load_state, \
+                         phi_color, firefly_clamp, ta_clamp, ta_reject, ta_reject_scales, ta_relight, pair, seed, cross_lr, cross_spatial_only, load_state, \
                          save_state, isa)"
                     )))
                 }
@@ -248,7 +249,8 @@ fn to_array<'py>(py: Python<'py>, planes: Vec<f32>, w: usize, h: usize) -> Bound
 /// default True), phi_color, firefly_clamp (à-trous), ta_clamp (ta, WSKP, AFN:
 /// the accumulation's history clamp), ta_reject (ta, WSKP, AFN: the history
 /// rejection's threshold, default 3, 2 for WSKP and AFN; 0 off), ta_reject_scales (its
-/// window means: 1 for 9x9, 2 and 17x17, 3 and 33x33; default 1, 3 for WSKP and AFN), pair ("mean", the default: with a second
+/// window means: 1 for 9x9, 2 and 17x17, 3 and 33x33; default 1, 3 for WSKP and AFN), ta_relight
+/// (ta, WSKP, AFN: relight the history where a light moved, default True), pair ("mean", the default: with a second
 /// estimate, none, ta, WSKP and AFN filter the mean of the two; "first":
 /// the second is ignored, cross refuses it), seed, cross_lr,
 /// cross_spatial_only, load_state, save_state (cross), isa.
@@ -423,7 +425,8 @@ impl PyDenoiser {
 ///            default True), fallback (WSKP, AFN and cross, default True), phi_color and firefly_clamp (à-trous),
 ///            ta_clamp (ta, WSKP, AFN: the history clamp), ta_reject (ta,
 ///            WSKP, AFN: the history rejection, default 3, 2 for WSKP and AFN; 0 off),
-///            ta_reject_scales (its window means: 1, 2 or 3 sizes; default 1, 3 for WSKP and AFN), pair ("mean" or
+///            ta_reject_scales (its window means: 1, 2 or 3 sizes; default 1, 3 for WSKP and AFN),
+///            ta_relight (relight the history where a light moved; default True), pair ("mean" or
 ///            "first": what a second estimate is used for), seed,
 ///            cross_lr and cross_spatial_only (cross), isa (scalar, avx2,
 ///            avx512)

@@ -261,6 +261,12 @@ def test_ta_reject_matches_the_command_line():
     ta_option_matches_the_command_line(["--ta-reject", "0"], {"ta_reject": 0.0}, "ta_reject=0")
 
 
+def test_ta_relight_matches_the_command_line():
+    # Off (the default is on): the keyword reaches the accumulation as
+    # --ta-relight off does.
+    ta_option_matches_the_command_line(["--ta-relight", "off"], {"ta_relight": False}, "ta_relight=False")
+
+
 def test_ta_reject_scales_matches_the_command_line():
     # TA at three scales as --ta-reject-scales 3 gives it (the default is
     # one); a count outside 1 to 3 is refused, naming the keyword.

@@ -150,9 +150,18 @@ pub const REJECT_STAGE: &str = REJECT_STAGES[0];
 /// the accumulated colour in f32, three statistics planes, the box sums'
 /// copies of the planes they sum (the three run at once) and the blend;
 /// with more than one scale, one copy of the three planes at a time to
-/// sum for every scale but the last.
+/// sum for every scale but the last; and the relighting's share of the
+/// counts kept, held throughout. While the relighting runs it holds its
+/// factors, four box sums and a byte of mask a pixel instead of the tests'
+/// blend and sums.
 pub const fn reject_temp_bytes(scales: usize) -> u64 {
-    (10 + if scales > 1 { 3 } else { 0 }) * 4
+    let tests = (11 + if scales > 1 { 3 } else { 0 }) * 4;
+    let relight = 12 * 4 + 1;
+    if tests > relight {
+        tests
+    } else {
+        relight
+    }
 }
 
 /// Checks the number of the history rejection's scales given by the user.
@@ -199,7 +208,9 @@ fn check_off_to_1e6(v: f32, option: &str, what: &str, unit: &str) -> Result<f32>
 /// a moving light's over it. With several `scales` ([`REJECT_SCALES`]:
 /// window radius, multiple of `z0`) each tests its own window means and
 /// `beta` is the largest of theirs: a wider window's mean has a smaller
-/// standard error and finds a lag too small for a 9x9 one.
+/// standard error and finds a lag too small for a 9x9 one. With `relit`,
+/// the accumulated colour is first relit where a light moved ([`relight`])
+/// and the tests compare the frame with the history relit.
 #[allow(clippy::too_many_arguments)]
 pub fn reject_stale<P: HostPrecision>(
     pool: &crate::runtime::par::Pool,
@@ -209,6 +220,8 @@ pub fn reject_stale<P: HostPrecision>(
     h: usize,
     z0: f32,
     scales: &[(usize, f32)],
+    relit: bool,
+    albedo: Option<&[f32]>,
     out: &mut Planes<P::Store>,
     hist: &mut Planes<P::Store>,
 ) {
@@ -255,6 +268,14 @@ pub fn reject_stale<P: HostPrecision>(
             }
         });
     }
+    // The history counts' share kept by the relighting (1: not relit).
+    let mut keep = vec![1.0f32; n];
+    if relit {
+        // The emitter rule's floor in this frame's radiance.
+        let e = crate::methods::fallback::positive_exposure(crate::methods::features::exposure(a, w, h));
+        let lights = crate::methods::features::CORE_FLOOR / e;
+        relight(pool, w, h, z0, &mf, &v, &mut mt, &mut oc, &mut keep, albedo, P::store_max(out.frac), lights);
+    }
     // Each scale's blend towards the frame; `beta` keeps the largest.
     let mut beta = vec![0.0f32; n];
     let last = scales.len() - 1;
@@ -290,12 +311,13 @@ pub fn reject_stale<P: HostPrecision>(
     }
     let mut hv = vec![0.0f32; n];
     P::decode(&hist.data, &mut hv, hist.frac);
-    let beta = &beta;
+    let (beta, keep) = (&beta, &keep);
     let mut planes: Vec<&mut [f32]> = oc.chunks_mut(n).collect();
     planes.push(&mut hv[..]);
     pool.planes(planes, RUN, |start, runs| {
         for j in 0..runs[0].len() {
             let p = start + j;
+            runs[3][j] *= keep[p];
             let beta = beta[p];
             if beta > 0.0 {
                 for (ch, run) in runs[..3].iter_mut().enumerate() {
@@ -310,6 +332,169 @@ pub fn reject_stale<P: HostPrecision>(
     });
     crate::runtime::precision::encode_par::<P>(pool, &oc, &mut out.data, out.frac);
     P::encode(&hv, &mut hist.data, hist.frac);
+}
+
+/// The relighting's window radius (65x65 means; [`relight`]).
+pub const RELIGHT_RADIUS: usize = 32;
+/// The radius of the relighting's local check (17x17 means).
+pub const RELIGHT_CHECK_RADIUS: usize = 8;
+/// The largest factor the relighting scales a history by (and the
+/// smallest, its inverse).
+pub const RELIGHT_MAX: f32 = 4.0;
+/// The share of a pixel's history count that a full relighting takes away
+/// (the history relit is not as good as one that held: its level is the
+/// frame's wide mean, whose noise the filters after it should see).
+pub const RELIGHT_COUNT: f32 = 0.5;
+/// The relighting's name in plans.
+pub const RELIGHT_STAGE: &str = "history relighting (65x65 means, where a light moved)";
+
+/// Relights the accumulated colour `oc` (3 planes of `w x h`) where a light
+/// moved, before the rejection's tests ([`reject_stale`]). With `F` and
+/// `T` the [`RELIGHT_RADIUS`] window means of the frame's luminance `mf`
+/// and of the accumulated one `mt` over the pixels that are not lights
+/// (with `albedo`, those that have some; and whose `mt` is not above
+/// `lights`, the emitter rule's floor: a light that covers its pixels in
+/// part has the albedo of what it covers), and `z` their difference in standard
+/// errors of `F` (from the per-pixel noise `v`, as the rejection's), the
+/// accumulated colour is scaled by `g = (F / T)^gamma`, `gamma = clamp(z /
+/// z0 - 1, 0, 1)`, held within `1 / RELIGHT_MAX ..= RELIGHT_MAX`, and
+/// only where it brings the [`RELIGHT_CHECK_RADIUS`] window means of the
+/// two closer (`|f - g t| < |f - t|`: a window holding a spotlight's cone
+/// and the dark around it relights the cone, not the dark). `mt` is scaled
+/// with it, and `keep[p]` is set to the share of the history count kept:
+/// `1 - RELIGHT_COUNT gamma` where relit, else 1. Lights and values at the
+/// storage format's `bound` (saturated: their level is not known) are not
+/// relit.
+///
+/// A light that moves changes a wall's shading by a smooth factor: scaled
+/// by it, the history keeps its samples where the rejection alone moves it
+/// to the frame's one sample. What the factor does not explain (a shadow's
+/// edge, an object that moved) the rejection's tests still find. A wide
+/// window's mean has a small standard error (a 65th of a pixel's noise);
+/// narrower ones (a ratio from 9x9 to 33x33 means, the narrowest whose
+/// standard error is under 5 or 10 % of its mean) scored lower (docs/quality.md,
+/// "The history relit where a light moved").
+#[allow(clippy::too_many_arguments)]
+pub fn relight(
+    pool: &crate::runtime::par::Pool,
+    w: usize,
+    h: usize,
+    z0: f32,
+    mf: &[f32],
+    v: &[f32],
+    mt: &mut [f32],
+    oc: &mut [f32],
+    keep: &mut [f32],
+    albedo: Option<&[f32]>,
+    bound: f32,
+    lights: f32,
+) {
+    let n = w * h;
+    if n == 0 || z0 <= 0.0 || mf.len() != n || v.len() != n || mt.len() != n || oc.len() != 3 * n || keep.len() != n {
+        return;
+    }
+    let albedo = albedo.filter(|a| a.len() >= 3 * n);
+    // A light seen directly (no albedo; or its accumulated luminance above
+    // the emitter rule's floor `lights` with two of its 8 neighbours over
+    // half of it: a light that covers its pixels in part has the albedo of
+    // what it covers, and a lone firefly is not a light) is neither counted
+    // nor relit. (A floor on the pixel alone left out the frame's fireflies
+    // but not their share in the history, and the means went apart.)
+    let mask: Vec<bool> = {
+        let mt: &[f32] = mt;
+        let light = |p: usize| {
+            if mt[p] <= lights {
+                return false;
+            }
+            let (x, y) = (p % w, p / w);
+            let mut bright = 0;
+            for qy in y.saturating_sub(1)..=(y + 1).min(h - 1) {
+                for qx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
+                    let q = qy * w + qx;
+                    if q != p && mt[q] > crate::methods::features::SMOOTH * lights {
+                        bright += 1;
+                    }
+                }
+            }
+            bright >= 2
+        };
+        (0..n).map(|p| !light(p) && albedo.is_none_or(|a| !crate::methods::features::is_emitter(a, n, p))).collect()
+    };
+    let surface = |p: usize| mask[p];
+    // A plane over the surfaces alone (0 elsewhere).
+    let masked =
+        |x: &[f32]| -> Vec<f32> { x.iter().enumerate().map(|(p, &v)| if surface(p) { v } else { 0.0 }).collect() };
+    const RUN: usize = 1 << 14;
+    let mut gain = vec![1.0f32; n];
+    {
+        let r = RELIGHT_RADIUS;
+        let (mut sf, mut sv, mut st) = (masked(mf), masked(v), masked(mt));
+        let mut sc: Vec<f32> = (0..n).map(|p| if surface(p) { 1.0 } else { 0.0 }).collect();
+        let sums = |x: &mut Vec<f32>| crate::methods::features::box_sum(x, w, h, r);
+        pool.install(|| {
+            rayon::join(
+                || rayon::join(|| sums(&mut sf), || sums(&mut sc)),
+                || rayon::join(|| sums(&mut sv), || sums(&mut st)),
+            );
+        });
+        let (sf, sv, st, sc) = (&sf, &sv, &st, &sc);
+        // A value at the storage format's bound is saturated: its level is
+        // not known, and scaled it would no longer read as saturated
+        // ([`restore_saturated`](crate::runtime::precision::restore_saturated)).
+        let ocr: &[f32] = oc;
+        let saturated = |p: usize| (0..3).any(|c| ocr[c * n + p].abs() >= bound);
+        pool.planes(vec![&mut gain[..], &mut keep[..]], RUN, |start, runs| {
+            for j in 0..runs[0].len() {
+                let p = start + j;
+                runs[1][j] = 1.0;
+                let cnt = sc[p];
+                if !surface(p) || saturated(p) || cnt < 0.5 {
+                    continue;
+                }
+                let (f, t) = (sf[p] / cnt, st[p] / cnt);
+                let se = (sv[p] / cnt / cnt).max(1e-20).sqrt();
+                let gamma = ((f - t).abs() / se / z0 - 1.0).clamp(0.0, 1.0);
+                if gamma > 0.0 && f > 0.0 && t > 0.0 {
+                    let g = (f / t).clamp(1.0 / RELIGHT_MAX, RELIGHT_MAX).powf(gamma);
+                    if g.is_finite() {
+                        runs[0][j] = g;
+                        runs[1][j] = 1.0 - RELIGHT_COUNT * gamma;
+                    }
+                }
+            }
+        });
+    }
+    {
+        let r = RELIGHT_CHECK_RADIUS;
+        let (mut sf, mut st) = (masked(mf), masked(mt));
+        let sums = |x: &mut Vec<f32>| crate::methods::features::box_sum(x, w, h, r);
+        pool.install(|| {
+            rayon::join(|| sums(&mut sf), || sums(&mut st));
+        });
+        let (sf, st) = (&sf, &st);
+        // (The windows' sums, not their means: the comparison is the same.)
+        pool.planes(vec![&mut gain[..], &mut keep[..]], RUN, |start, runs| {
+            for j in 0..runs[0].len() {
+                let p = start + j;
+                let g = runs[0][j];
+                let closer = (sf[p] - g * st[p]).abs() < (sf[p] - st[p]).abs();
+                if g != 1.0 && !closer {
+                    runs[0][j] = 1.0;
+                    runs[1][j] = 1.0;
+                }
+            }
+        });
+    }
+    let gain = &gain;
+    let mut planes: Vec<&mut [f32]> = oc.chunks_mut(n).collect();
+    planes.push(mt);
+    pool.planes(planes, RUN, |start, runs| {
+        for run in runs.iter_mut() {
+            for (j, val) in run.iter_mut().enumerate() {
+                *val *= gain[start + j];
+            }
+        }
+    });
 }
 
 /// Floors the history counts at 1: every pixel's accumulated colour holds
@@ -360,6 +545,25 @@ pub fn reject_plan(plan: &mut Plan, z: f32, scales: usize) {
     plan.built.retain(|s| !REJECT_STAGES.contains(s));
     plan.skipped.retain(|(s, _)| !REJECT_STAGES.contains(s));
     stage_plan(plan, name, z > 0.0, "--ta-reject 0");
+    if let Some(at) = plan.built.iter().position(|s| *s == RELIGHT_STAGE) {
+        let stage = plan.built.remove(at);
+        let r = plan.built.iter().position(|s| REJECT_STAGES.contains(s)).unwrap_or(plan.built.len());
+        plan.built.insert(r, stage);
+    }
+}
+
+/// Records the relighting in `plan`: built when `on` and the rejection
+/// (threshold `z`) runs, else skipped (replacing an earlier entry).
+pub fn relight_plan(plan: &mut Plan, z: f32, on: bool) {
+    let why = if on { "--ta-reject 0" } else { "--ta-relight off" };
+    stage_plan(plan, RELIGHT_STAGE, on && z > 0.0, why);
+    // It runs first within the rejection: listed just before it.
+    if let (Some(at), Some(r)) =
+        (plan.built.iter().position(|s| *s == RELIGHT_STAGE), plan.built.iter().position(|s| REJECT_STAGES.contains(s)))
+    {
+        let stage = plan.built.remove(at);
+        plan.built.insert(if r > at { r - 1 } else { r }, stage);
+    }
 }
 
 /// Records `stage` in `plan` as built when `on`, else as skipped for `why`
@@ -402,7 +606,16 @@ macro_rules! ta_builders {
         pub fn with_ta_reject(mut self, z: f32) -> crate::error::Result<Self> {
             self.ta = self.ta.with_reject(z)?;
             crate::methods::basic::reject_plan(&mut self.plan, z, self.ta.reject_scales());
+            crate::methods::basic::relight_plan(&mut self.plan, z, self.ta.relight());
             Ok(self)
+        }
+
+        /// With the accumulation's history relit where a light moved
+        /// ([`crate::methods::basic::relight`]; on unless told).
+        pub fn with_ta_relight(mut self, on: bool) -> Self {
+            self.ta = self.ta.with_relight(on);
+            crate::methods::basic::relight_plan(&mut self.plan, self.ta.reject(), on);
+            self
         }
 
         /// With the accumulation's history rejection testing the first `k`
@@ -462,6 +675,8 @@ pub struct TemporalAccumulation<P: HostPrecision> {
     reject: f32,
     /// The first this many of [`REJECT_SCALES`] are tested.
     reject_scales: usize,
+    /// Whether the rejection relights the history first ([`relight`]).
+    relight: bool,
 }
 
 struct History<P: HostPrecision> {
@@ -503,6 +718,7 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
             plan.skipped.push(("albedo test", "no albedo".into()));
         }
         let params = TemporalParams { pos_limit: POSITION_TOLERANCE * scene_scale(first), ..TemporalParams::default() };
+        plan.built.push(RELIGHT_STAGE);
         plan.built.push(REJECT_STAGE);
         Ok(TemporalAccumulation {
             plan,
@@ -514,7 +730,21 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
             prev: None,
             reject: TA_REJECT,
             reject_scales: TA_REJECT_SCALES,
+            relight: true,
         })
+    }
+
+    /// With the history relit where a light moved ([`relight`], on unless
+    /// told; it runs within the rejection, so not with `--ta-reject 0`).
+    pub fn with_relight(mut self, on: bool) -> Self {
+        self.relight = on;
+        relight_plan(&mut self.plan, self.reject, on);
+        self
+    }
+
+    /// Whether the history is relit where a light moved.
+    pub fn relight(&self) -> bool {
+        self.relight
     }
 
     /// With the history rejection at `z` standard errors ([`reject_stale`];
@@ -525,6 +755,7 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
     pub fn with_reject(mut self, z: f32) -> Result<Self> {
         self.reject = check_reject(z)?;
         reject_plan(&mut self.plan, self.reject, self.reject_scales);
+        relight_plan(&mut self.plan, self.reject, self.relight);
         Ok(self)
     }
 
@@ -664,7 +895,19 @@ impl<P: HostPrecision> TemporalAccumulation<P> {
                         let z0 = self.reject;
                         let scales = &REJECT_SCALES[..self.reject_scales];
                         t.time("history rejection", || {
-                            reject_stale::<P>(&ctx.pool, a, f.pair(), w, h, z0, scales, &mut out, &mut hist)
+                            reject_stale::<P>(
+                                &ctx.pool,
+                                a,
+                                f.pair(),
+                                w,
+                                h,
+                                z0,
+                                scales,
+                                self.relight,
+                                f.get(Buffer::Albedo),
+                                &mut out,
+                                &mut hist,
+                            )
                         });
                     }
                 }
@@ -745,7 +988,7 @@ mod tests {
                 P::encode(&hist_c, &mut out.data, frac);
                 let mut hist = Planes::<P::Store>::new(1, w, h).with_frac(P::frac_or_zero(HISTORY_FRAC));
                 P::encode(&vec![8.0f32; n], &mut hist.data, hist.frac);
-                reject_stale::<P>(&pool, &a, b, w, h, TA_REJECT, &REJECT_SCALES[..1], &mut out, &mut hist);
+                reject_stale::<P>(&pool, &a, b, w, h, TA_REJECT, &REJECT_SCALES[..1], false, None, &mut out, &mut hist);
                 let (oc, hv) = (out.decode::<P>(), hist.decode::<P>());
                 let (mut kept, mut gone, mut half, mut left, mut right) = (0usize, 0usize, 0usize, 0usize, 0usize);
                 for y in 0..h {
@@ -810,7 +1053,19 @@ mod tests {
                 P::encode(hist_c, &mut out.data, frac);
                 let mut hist = Planes::<P::Store>::new(1, w, h).with_frac(P::frac_or_zero(HISTORY_FRAC));
                 P::encode(&vec![8.0f32; n], &mut hist.data, hist.frac);
-                reject_stale::<P>(&pool, &a, None, w, h, LEARNED_TA_REJECT, &REJECT_SCALES[..k], &mut out, &mut hist);
+                reject_stale::<P>(
+                    &pool,
+                    &a,
+                    None,
+                    w,
+                    h,
+                    LEARNED_TA_REJECT,
+                    &REJECT_SCALES[..k],
+                    false,
+                    None,
+                    &mut out,
+                    &mut hist,
+                );
                 let hv = hist.decode::<P>();
                 let (mut moved, mut right, mut kept, mut left) = (0.0f64, 0usize, 0usize, 0usize);
                 for y in 16..h - 16 {
@@ -1029,6 +1284,211 @@ mod tests {
         }
         let n = last.len() as f32;
         (last.iter().sum::<f32>() / n, last.iter().map(|v| (v - truth).powi(2)).sum::<f32>() / n)
+    }
+
+    /// `relight` against an f64 oracle written from its definition: window
+    /// means by brute force over the clipped 65x65 and 17x17 windows, the
+    /// factor, the check and the counts' share. A history lit by a factor
+    /// that runs from 0.5 to 1.6 across the frame (and, in a strip, by one
+    /// the 17x17 check refuses), noisy frame, mixed noise levels; without
+    /// albedo, and with a block without albedo and pixels above the emitter
+    /// floor (left out of the windows and never relit) and values at the
+    /// format's bound (never relit).
+    #[test]
+    fn relight_matches_an_f64_oracle() {
+        let (w, h) = (83, 71);
+        let n = w * h;
+        let mut s = 7u32;
+        let mut rnd = || {
+            s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (s >> 8) as f32 / (1u32 << 24) as f32
+        };
+        let base: Vec<f32> = (0..n).map(|p| 0.2 + 0.8 * ((p % w) as f32 / w as f32) + 0.3 * rnd()).collect();
+        let mf: Vec<f32> = base.iter().map(|b| b * (0.7 + 0.6 * rnd())).collect();
+        let v: Vec<f32> = (0..n).map(|p| if (p / w) % 3 == 0 { 1e-4 } else { 0.02 * rnd() }).collect();
+        let k = |p: usize| {
+            let (x, y) = (p % w, p / w);
+            if (30..36).contains(&y) {
+                // A strip whose history is already right: the wide windows
+                // around it say otherwise, its own 17x17 windows mostly not.
+                1.0
+            } else {
+                0.5 + 1.1 * x as f32 / w as f32
+            }
+        };
+        // A light one pixel wide (bright in the history; the case with
+        // albedo leaves it out by the emitter floor given) and lone bright
+        // pixels (fireflies, counted).
+        let line = |p: usize| p % w == 70 && (40..60).contains(&(p / w));
+        let mt0: Vec<f32> = (0..n).map(|p| if line(p) || p % 89 == 5 { 30.0 } else { base[p] * k(p) }).collect();
+        let oc0: Vec<f32> = (0..3 * n).map(|i| mt0[i % n] * (0.5 + 0.5 * (i / n) as f32) + 0.01 * rnd()).collect();
+        let z0 = 2.0f32;
+        // A block without albedo (a light, a mirror in a raw AOV) and the
+        // storage format's bound under the block's and a few pixels' colour.
+        let dark = |p: usize| (40..60).contains(&(p % w)) && (10..25).contains(&(p / w));
+        let albedo: Vec<f32> = (0..3 * n).map(|i| if dark(i % n) { 0.0 } else { 0.6 }).collect();
+        let mut oc0 = oc0;
+        for p in (0..n).filter(|p| dark(*p) || p % 97 == 0) {
+            oc0[p] = 9.0;
+        }
+        let pool = crate::runtime::par::Pool::new(2).unwrap();
+        for case in 0..2 {
+            let (al, bound, lights) =
+                if case == 0 { (None, f32::INFINITY, f32::INFINITY) } else { (Some(&albedo[..]), 8.0, 20.0) };
+            let light = |q: usize| {
+                let (x, y) = ((q % w) as i64, (q / w) as i64);
+                let bright = (-1i64..=1)
+                    .flat_map(|dy| (-1i64..=1).map(move |dx| (x + dx, y + dy)))
+                    .filter(|&(qx, qy)| (qx, qy) != (x, y) && qx >= 0 && qy >= 0 && qx < w as i64 && qy < h as i64)
+                    .filter(|&(qx, qy)| mt0[qy as usize * w + qx as usize] > 0.5 * lights)
+                    .count();
+                mt0[q] > lights && bright >= 2
+            };
+            let surface = |q: usize| !light(q) && (al.is_none() || !dark(q));
+            let (mut mt, mut oc, mut keep) = (mt0.clone(), oc0.clone(), vec![0.9f32; n]);
+            relight(&pool, w, h, z0, &mf, &v, &mut mt, &mut oc, &mut keep, al, bound, lights);
+            let win = |x: usize, y: usize, r: usize, f: &dyn Fn(usize) -> f64| {
+                let (mut sum, mut cnt) = (0.0f64, 0.0f64);
+                for qy in y.saturating_sub(r)..=(y + r).min(h - 1) {
+                    for qx in x.saturating_sub(r)..=(x + r).min(w - 1) {
+                        let q = qy * w + qx;
+                        if surface(q) {
+                            sum += f(q);
+                            cnt += 1.0;
+                        }
+                    }
+                }
+                (sum, cnt)
+            };
+            let (mut relit, mut checked, mut refused) = (0, 0, 0);
+            for y in 0..h {
+                for x in 0..w {
+                    let p = y * w + x;
+                    let (sf, c) = win(x, y, RELIGHT_RADIUS, &|q| mf[q] as f64);
+                    let (st, _) = win(x, y, RELIGHT_RADIUS, &|q| mt0[q] as f64);
+                    let (sv, _) = win(x, y, RELIGHT_RADIUS, &|q| v[q] as f64);
+                    let (f, t, se) = (sf / c, st / c, (sv / c / c).sqrt());
+                    let held = surface(p) && (0..3).all(|ch| (oc0[ch * n + p].abs() as f64) < bound as f64);
+                    let gamma = if held { ((f - t).abs() / se / z0 as f64 - 1.0).clamp(0.0, 1.0) } else { 0.0 };
+                    let mut g = if gamma > 0.0 { (f / t).clamp(0.25, 4.0).powf(gamma) } else { 1.0 };
+                    let mut share = 1.0 - 0.5 * gamma;
+                    let (lf, _) = win(x, y, RELIGHT_CHECK_RADIUS, &|q| mf[q] as f64);
+                    let (lt, _) = win(x, y, RELIGHT_CHECK_RADIUS, &|q| mt0[q] as f64);
+                    let margin = (lf - lt).abs() - (lf - g * lt).abs();
+                    if g != 1.0 {
+                        if margin.abs() < 1e-3 * lf.abs() {
+                            continue; // too close to the check's edge for f32
+                        }
+                        checked += 1;
+                        if margin <= 0.0 {
+                            g = 1.0;
+                            share = 1.0;
+                            refused += 1;
+                        } else {
+                            relit += 1;
+                        }
+                    }
+                    let close = |a: f32, b: f64| ((a as f64) - b).abs() <= 1e-4 * b.abs().max(1e-3);
+                    assert!(
+                        close(mt[p], mt0[p] as f64 * g),
+                        "mt at ({x},{y}): {} against {}",
+                        mt[p],
+                        mt0[p] as f64 * g
+                    );
+                    for ch in 0..3 {
+                        let want = oc0[ch * n + p] as f64 * g;
+                        assert!(
+                            close(oc[ch * n + p], want),
+                            "colour {ch} at ({x},{y}): {} against {want}",
+                            oc[ch * n + p]
+                        );
+                    }
+                    assert!(close(keep[p], share), "share kept at ({x},{y}): {} against {share}", keep[p]);
+                }
+            }
+            assert!(
+                relit > n / 4 && refused > 50 && checked > relit,
+                "case {case}: relit {relit}, refused {refused} of {n}"
+            );
+        }
+    }
+
+    /// A static sequence of `w x h` whose level follows `levels`, each
+    /// value drawn from a uniform spread of `rel` times it either side
+    /// (1 spp-like noise), zero motion.
+    fn frames_rel(levels: &[f32], rel: f32, w: usize, h: usize) -> Vec<Frame> {
+        let mut s = 5u32;
+        levels
+            .iter()
+            .map(|&l| {
+                let c: Vec<f32> = (0..3 * w * h)
+                    .map(|_| {
+                        s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                        l * (1.0 + rel * 2.0 * ((s >> 8) as f32 / (1u32 << 24) as f32 - 0.5))
+                    })
+                    .collect();
+                let mut f = Frame::from_color("test.exr", w, h, c).unwrap();
+                f.set(Buffer::Motion, vec![0.0; 2 * w * h]).unwrap();
+                f
+            })
+            .collect()
+    }
+
+    /// A wall a moving light dims by 15 % a frame: the rejection alone
+    /// restarts the history every frame (the 9x9 to 33x33 means tell the
+    /// change); relit, the history follows the light and keeps averaging.
+    /// Both track the level; the relit one's error is under 0.6 times the
+    /// other's. On a static wall the relighting changes the level by
+    /// nothing the noise does not.
+    #[test]
+    fn a_dimming_light_keeps_the_history_relit() {
+        let (w, h) = (72, 56);
+        let levels: Vec<f32> = (0..12).map(|t| 0.85f32.powi(t)).collect();
+        let truth = *levels.last().unwrap();
+        let run = |seq: &[Frame], relight: bool| {
+            let mut ctx = crate::methods::context(&crate::methods::Settings::default()).unwrap();
+            let mut ta = TemporalAccumulation::<F32>::new(&seq[0], true)
+                .unwrap()
+                .with_reject(LEARNED_TA_REJECT)
+                .unwrap()
+                .with_reject_scales(LEARNED_TA_REJECT_SCALES)
+                .unwrap()
+                .with_relight(relight);
+            let mut t = Timings::default();
+            let mut last = Vec::new();
+            for f in seq {
+                last = ta.denoise(f, &mut ctx, &mut t).unwrap();
+            }
+            let n = last.len() as f32;
+            let mean = last.iter().sum::<f32>() / n;
+            (mean, (last.iter().map(|v| (v - truth).powi(2)).sum::<f32>() / n).sqrt())
+        };
+        let seq = frames_rel(&levels, 0.9, w, h);
+        let (m_off, e_off) = run(&seq, false);
+        let (m_on, e_on) = run(&seq, true);
+        for m in [m_off, m_on] {
+            assert!((m / truth - 1.0).abs() < 0.05, "level {m} against {truth}");
+        }
+        assert!(e_on < 0.6 * e_off, "relit {e_on} against {e_off}");
+        let still = frames_rel(&[0.5; 12], 0.9, w, h);
+        let (s_off, _) = run(&still, false);
+        let (s_on, _) = run(&still, true);
+        assert!((s_on / s_off - 1.0).abs() < 0.01, "static: {s_on} against {s_off}");
+    }
+
+    /// The relighting is in the plan where the rejection runs, just before
+    /// it, and skipped with `with_relight(false)` or without the rejection.
+    #[test]
+    fn the_relighting_is_planned_within_the_rejection() {
+        let seq = frames(&[1.0], 0.1);
+        let ta = TemporalAccumulation::<F32>::new(&seq[0], true).unwrap();
+        let b = &ta.plan().built;
+        let at = b.iter().position(|s| *s == RELIGHT_STAGE).expect("built");
+        assert_eq!(b.get(at + 1), Some(&REJECT_STAGE), "{b:?}");
+        let off = ta.with_relight(false);
+        assert!(off.plan().skipped.iter().any(|(s, why)| *s == RELIGHT_STAGE && why.contains("--ta-relight off")));
+        let none = TemporalAccumulation::<F32>::new(&seq[0], true).unwrap().with_reject(0.0).unwrap();
+        assert!(none.plan().skipped.iter().any(|(s, why)| *s == RELIGHT_STAGE && why.contains("--ta-reject 0")));
     }
 
     /// [`run_with`] with the clamp alone.

@@ -30,10 +30,10 @@ pub use atrous::Atrous;
 pub(crate) use basic::ta_builders;
 
 pub use basic::{
-    check_clamp, check_reject, check_reject_scales, clamp_plan, reject_plan, reject_stale, scene_scale, ta_clamp_for,
-    ta_clamp_of, Passthrough, TemporalAccumulation, CLAMP_STAGE, LEARNED_TA_REJECT, LEARNED_TA_REJECT_SCALES,
-    POSITION_TOLERANCE, REJECT_SCALES, REJECT_STAGE, REJECT_STAGES, TA_CLAMP, TA_CLAMP_RADIUS, TA_REJECT,
-    TA_REJECT_SCALES,
+    check_clamp, check_reject, check_reject_scales, clamp_plan, reject_plan, reject_stale, relight, relight_plan,
+    scene_scale, ta_clamp_for, ta_clamp_of, Passthrough, TemporalAccumulation, CLAMP_STAGE, LEARNED_TA_REJECT,
+    LEARNED_TA_REJECT_SCALES, POSITION_TOLERANCE, REJECT_SCALES, REJECT_STAGE, REJECT_STAGES, RELIGHT_STAGE, TA_CLAMP,
+    TA_CLAMP_RADIUS, TA_REJECT, TA_REJECT_SCALES,
 };
 
 /// The methods, by command-line name.
@@ -256,6 +256,9 @@ pub struct Settings {
     /// 17x17 and 33x33 means) it tests (`None`: [`TA_REJECT_SCALES`],
     /// WSKP's and AFN's [`LEARNED_TA_REJECT_SCALES`]).
     pub ta_reject_scales: Option<usize>,
+    /// Temporal accumulation (ta, WSKP, AFN): relight the history where a
+    /// light moved ([`relight`]; within the rejection).
+    pub ta_relight: bool,
     /// Online methods: the seed of the initial weights.
     pub seed: u64,
     /// Online methods: write the network's state here after every frame.
@@ -348,6 +351,7 @@ impl Default for Settings {
             ta_clamp: None,
             ta_reject: None,
             ta_reject_scales: None,
+            ta_relight: true,
             seed: crate::methods::cross::SEED,
             save_state: None,
             load_state: None,
@@ -463,7 +467,8 @@ fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Fr
             TemporalAccumulation::<P>::new(first, true)?
                 .with_clamp(settings.ta_clamp.unwrap_or(basic::TA_CLAMP))?
                 .with_reject(settings.ta_reject.unwrap_or(basic::TA_REJECT))?
-                .with_reject_scales(settings.ta_reject_scales.unwrap_or(basic::TA_REJECT_SCALES))?,
+                .with_reject_scales(settings.ta_reject_scales.unwrap_or(basic::TA_REJECT_SCALES))?
+                .with_relight(settings.ta_relight),
         ),
         MethodKind::Atrous => Box::new(Atrous::<P>::new(first, false, settings)?),
         MethodKind::SureAtrous => Box::new(Atrous::<P>::new(first, true, settings)?),
@@ -482,6 +487,7 @@ fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Fr
             if let Some(k) = settings.ta_reject_scales {
                 m = m.with_ta_reject_scales(k)?;
             }
+            let m = m.with_ta_relight(settings.ta_relight);
             Box::new(m)
         }
         MethodKind::Afn => {
@@ -500,6 +506,7 @@ fn create_in<P: HostPrecision>(kind: MethodKind, settings: &Settings, first: &Fr
             if let Some(k) = settings.ta_reject_scales {
                 m = m.with_ta_reject_scales(k)?;
             }
+            let m = m.with_ta_relight(settings.ta_relight);
             Box::new(m)
         }
         MethodKind::Cross => unreachable!("built above"),
