@@ -32,8 +32,8 @@ pub(crate) use basic::ta_builders;
 pub use basic::{
     check_clamp, check_reject, check_reject_scales, clamp_plan, reject_plan, reject_stale, relight, relight_plan,
     scene_scale, ta_clamp_for, ta_clamp_of, Passthrough, TemporalAccumulation, CLAMP_STAGE, LEARNED_TA_REJECT,
-    LEARNED_TA_REJECT_SCALES, POSITION_TOLERANCE, REJECT_SCALES, REJECT_STAGE, REJECT_STAGES, RELIGHT_STAGE, TA_CLAMP,
-    TA_CLAMP_RADIUS, TA_REJECT, TA_REJECT_SCALES,
+    LEARNED_TA_REJECT_SCALES, POSITION_TOLERANCE, REJECT_SCALES, REJECT_STAGE, REJECT_STAGES, RELIGHT_CHECK_RADIUS,
+    RELIGHT_COUNT, RELIGHT_MAX, RELIGHT_RADIUS, RELIGHT_STAGE, TA_CLAMP, TA_CLAMP_RADIUS, TA_REJECT, TA_REJECT_SCALES,
 };
 
 /// The methods, by command-line name.
