@@ -1249,15 +1249,21 @@ mod tests {
     /// A static 12x10 sequence: `frames` of flat `level` with uniform noise
     /// of half-width `amp` (a deterministic hash), zero motion.
     fn frames(levels: &[f32], amp: f32) -> Vec<Frame> {
-        let (w, h) = (12, 10);
-        let mut s = 99u32;
+        frames_by(levels, 12, 10, 99, |l, u| l + amp * 2.0 * u)
+    }
+
+    /// A static sequence of `w x h`, a frame per level of `levels`, each
+    /// value `value(level, u)` with `u` uniform in `[-1/2, 1/2)` (a
+    /// deterministic hash from `seed`), zero motion.
+    fn frames_by(levels: &[f32], w: usize, h: usize, seed: u32, value: impl Fn(f32, f32) -> f32) -> Vec<Frame> {
+        let mut s = seed;
         levels
             .iter()
             .map(|&l| {
                 let c: Vec<f32> = (0..3 * w * h)
                     .map(|_| {
                         s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-                        l + amp * 2.0 * ((s >> 8) as f32 / (1u32 << 24) as f32 - 0.5)
+                        value(l, (s >> 8) as f32 / (1u32 << 24) as f32 - 0.5)
                     })
                     .collect();
                 let mut f = Frame::from_color("test.exr", w, h, c).unwrap();
@@ -1417,21 +1423,7 @@ mod tests {
     /// value drawn from a uniform spread of `rel` times it either side
     /// (1 spp-like noise), zero motion.
     fn frames_rel(levels: &[f32], rel: f32, w: usize, h: usize) -> Vec<Frame> {
-        let mut s = 5u32;
-        levels
-            .iter()
-            .map(|&l| {
-                let c: Vec<f32> = (0..3 * w * h)
-                    .map(|_| {
-                        s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-                        l * (1.0 + rel * 2.0 * ((s >> 8) as f32 / (1u32 << 24) as f32 - 0.5))
-                    })
-                    .collect();
-                let mut f = Frame::from_color("test.exr", w, h, c).unwrap();
-                f.set(Buffer::Motion, vec![0.0; 2 * w * h]).unwrap();
-                f
-            })
-            .collect()
+        frames_by(levels, w, h, 5, |l, u| l * (1.0 + rel * 2.0 * u))
     }
 
     /// A wall a moving light dims by 15 % a frame: the rejection alone
