@@ -152,11 +152,11 @@ pub const REJECT_STAGE: &str = REJECT_STAGES[0];
 /// with more than one scale, one copy of the three planes at a time to
 /// sum for every scale but the last; and the relighting's share of the
 /// counts kept, held throughout. While the relighting runs it holds its
-/// factors, four box sums and a byte of mask a pixel instead of the tests'
-/// blend and sums.
+/// factors, four planes to sum, the four sums' copies (they run at once)
+/// and a byte of mask a pixel instead of the tests' blend and sums.
 pub const fn reject_temp_bytes(scales: usize) -> u64 {
     let tests = (11 + if scales > 1 { 3 } else { 0 }) * 4;
-    let relight = 12 * 4 + 1;
+    let relight = 16 * 4 + 1;
     if tests > relight {
         tests
     } else {
