@@ -545,9 +545,15 @@ pub fn reject_plan(plan: &mut Plan, z: f32, scales: usize) {
     plan.built.retain(|s| !REJECT_STAGES.contains(s));
     plan.skipped.retain(|(s, _)| !REJECT_STAGES.contains(s));
     stage_plan(plan, name, z > 0.0, "--ta-reject 0");
+    relight_first(plan);
+}
+
+/// Lists a built relighting just before the rejection it runs first
+/// within (where it is, without one).
+fn relight_first(plan: &mut Plan) {
     if let Some(at) = plan.built.iter().position(|s| *s == RELIGHT_STAGE) {
         let stage = plan.built.remove(at);
-        let r = plan.built.iter().position(|s| REJECT_STAGES.contains(s)).unwrap_or(plan.built.len());
+        let r = plan.built.iter().position(|s| REJECT_STAGES.contains(s)).unwrap_or(at);
         plan.built.insert(r, stage);
     }
 }
@@ -557,13 +563,7 @@ pub fn reject_plan(plan: &mut Plan, z: f32, scales: usize) {
 pub fn relight_plan(plan: &mut Plan, z: f32, on: bool) {
     let why = if on { "--ta-reject 0" } else { "--ta-relight off" };
     stage_plan(plan, RELIGHT_STAGE, on && z > 0.0, why);
-    // It runs first within the rejection: listed just before it.
-    if let (Some(at), Some(r)) =
-        (plan.built.iter().position(|s| *s == RELIGHT_STAGE), plan.built.iter().position(|s| REJECT_STAGES.contains(s)))
-    {
-        let stage = plan.built.remove(at);
-        plan.built.insert(if r > at { r - 1 } else { r }, stage);
-    }
+    relight_first(plan);
 }
 
 /// Records `stage` in `plan` as built when `on`, else as skipped for `why`
